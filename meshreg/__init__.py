@@ -1,0 +1,16 @@
+"""meshreg: elastic shape registration of surfaces (DP, gradient descent, Kabsch).
+
+>>> import meshreg
+>>> from meshreg.samples import paper_pairs
+>>> pair = paper_pairs(21, 21)[6]
+>>> result = meshreg.register(pair.first, pair.second, mode="dp")
+>>> result.rotation.round().astype(int).tolist()
+[[0, 1, 0], [0, 0, 1], [1, 0, 0]]
+"""
+
+from .errors import InputError
+from .grid import GridSurface, read_grid
+from .register import MODES, Registration, register
+
+__all__ = ["GridSurface", "InputError", "MODES", "Registration", "read_grid", "register"]
+__version__ = "0.1.0"

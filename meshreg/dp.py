@@ -1,0 +1,264 @@
+"""DP-surface-min: dynamic programming over reparametrizations h(r, t) = (gamma(r), t).
+
+With h restricted to act along r, E(R, h) becomes the elastic distance between two curves in
+R^(3(N-1)) (the columns of q), which dynamic programming minimizes exactly over piecewise-linear
+gamma whose pieces join grid nodes with steps (dk, dl), 1 <= dk, dl <= W, gcd(dk, dl) = 1.
+The DP alternates with Kabsch-Umeyama, starting from Kabsch at the identity gamma.
+
+Specification: ``dp_surface_min.md`` (exact edge costs over merged breakpoints; constant terms of
+E are dropped so the DP maximizes the cross term ``sum len sqrt(m) trace(R C[a][b])``).
+
+References
+----------
+Bernal & Lawrence, Section 4, Step 1 of the outline (Procedure DP-surface-min).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import gcd
+
+import numba
+import numpy as np
+
+from .rotation import kabsch
+
+DEFAULT_WINDOW = 10
+DEFAULT_DP_ROUNDS = 10
+DEFAULT_DP_TOL = 1e-9
+
+
+def steps(window: int) -> np.ndarray:
+    """Allowed DP steps (dk, dl), 1 <= dk, dl <= window, gcd(dk, dl) = 1; shape (S, 2)."""
+    return np.array(
+        [(a, b) for a in range(1, window + 1) for b in range(1, window + 1) if gcd(a, b) == 1], dtype=np.int64
+    )
+
+
+@numba.njit(cache=True)
+def _edge_cross(r1, s2, k0, l0, k, l, g):
+    """sqrt(m) * sum over pieces of len * g[a, b] for the straight edge (k0, l0) -> (k, l)."""
+    x0 = r1[k0]
+    y0 = s2[l0]
+    slope = (s2[l] - y0) / (r1[k] - x0)
+    a = k0
+    b = l0
+    x = x0
+    total = 0.0
+    while a < k and b < l:
+        xa = r1[a + 1]
+        xb = x0 + (s2[b + 1] - y0) / slope
+        tol = 1e-12 * (1.0 + abs(xa))
+        if xa < xb - tol:
+            total += (xa - x) * g[a, b]
+            x = xa
+            a += 1
+        elif xb < xa - tol:
+            total += (xb - x) * g[a, b]
+            x = xb
+            b += 1
+        else:
+            total += (xa - x) * g[a, b]
+            x = xa
+            a += 1
+            b += 1
+    return np.sqrt(slope) * total
+
+
+@numba.njit(cache=True)
+def _edge_covariance(r1, s2, k0, l0, k, l, c, out):
+    """Add sqrt(m) * sum len * C[a, b] (3x3) of the edge (k0, l0) -> (k, l) to ``out``."""
+    x0 = r1[k0]
+    y0 = s2[l0]
+    slope = (s2[l] - y0) / (r1[k] - x0)
+    sq = np.sqrt(slope)
+    a = k0
+    b = l0
+    x = x0
+    while a < k and b < l:
+        xa = r1[a + 1]
+        xb = x0 + (s2[b + 1] - y0) / slope
+        tol = 1e-12 * (1.0 + abs(xa))
+        if xa < xb - tol:
+            end = xa
+            da, db = 1, 0
+        elif xb < xa - tol:
+            end = xb
+            da, db = 0, 1
+        else:
+            end = xa
+            da, db = 1, 1
+        out += (end - x) * sq * c[a, b]
+        x = end
+        a += da
+        b += db
+
+
+@numba.njit(cache=True)
+def _dp_table(r1, s2, g, step, lo, hi):
+    """Maximize the cross term over monotone paths (0,0) -> (A,B); returns (value, predecessor)."""
+    na = r1.shape[0]
+    nb = s2.shape[0]
+    best = np.full((na, nb), -np.inf)
+    pred = np.full((na, nb), -1, dtype=np.int64)
+    best[0, 0] = 0.0
+    for k in range(1, na):
+        for l in range(max(lo[k], 1), hi[k] + 1):
+            top = -np.inf
+            arg = -1
+            for s in range(step.shape[0]):
+                k0 = k - step[s, 0]
+                l0 = l - step[s, 1]
+                if k0 < 0 or l0 < 0:
+                    continue
+                prev = best[k0, l0]
+                if prev == -np.inf:
+                    continue
+                val = prev + _edge_cross(r1, s2, k0, l0, k, l, g)
+                if val > top:
+                    top = val
+                    arg = s
+            best[k, l] = top
+            pred[k, l] = arg
+    return best, pred
+
+
+def _backtrack(pred: np.ndarray, step: np.ndarray) -> np.ndarray:
+    k, l = pred.shape[0] - 1, pred.shape[1] - 1
+    if pred[k, l] < 0:
+        raise RuntimeError("DP found no path to the end node: widen the window or the strip")
+    path = [(k, l)]
+    while (k, l) != (0, 0):
+        dk, dl = step[pred[k, l]]
+        k, l = k - dk, l - dl
+        path.append((k, l))
+    return np.array(path[::-1], dtype=np.int64)
+
+
+@numba.njit(cache=True)
+def _path_covariance(r1, s2, path, c):
+    out = np.zeros((3, 3))
+    for p in range(path.shape[0] - 1):
+        _edge_covariance(r1, s2, path[p, 0], path[p, 1], path[p + 1, 0], path[p + 1, 1], c, out)
+    return out
+
+
+def column_covariances(q1: np.ndarray, q2: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """C[a, b] = sum_j dt_j q1[a, j] q2[b, j]^T, shape (A, B, 3, 3)."""
+    a, n, _ = q1.shape
+    b = q2.shape[0]
+    x = (q1 * dt[None, :, None]).transpose(0, 2, 1).reshape(a * 3, n)
+    y = q2.transpose(1, 0, 2).reshape(n, b * 3)
+    return (x @ y).reshape(a, 3, b, 3).transpose(0, 2, 1, 3)
+
+
+@dataclass(frozen=True)
+class DPResult:
+    """Outcome of :func:`dp_surface_min`.
+
+    Attributes
+    ----------
+    rotation : ndarray, shape (3, 3)
+    path : ndarray, shape (P, 2)
+        Node indices (k, l) of the optimal path, (0, 0) to (A, B).
+    gamma : ndarray, shape (A + 1,)
+        gamma at the first surface's r nodes (piecewise linear through the path, strictly increasing).
+    energy : float
+        E(R, gamma) of the discretized problem (the DP's own value).
+    history : tuple of float
+        E after each round (DP for the current R, then Kabsch for that gamma).
+    """
+
+    rotation: np.ndarray
+    path: np.ndarray
+    gamma: np.ndarray
+    energy: float
+    history: tuple
+
+
+def strip_bounds(na: int, nb: int, path: np.ndarray | None, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """For each k the range [lo, hi] of l allowed in the DP table.
+
+    Without a path, the whole table. With a path (node indices on a grid of na x nb nodes), the
+    l's within ``radius`` nodes of the path's l at k, so the DP costs O(na * radius * W^2).
+    """
+    if path is None:
+        return np.zeros(na, dtype=np.int64), np.full(na, nb - 1, dtype=np.int64)
+    centre = np.interp(np.arange(na), path[:, 0], path[:, 1])
+    lo = np.clip(np.floor(centre) - radius, 0, nb - 1).astype(np.int64)
+    hi = np.clip(np.ceil(centre) + radius, 0, nb - 1).astype(np.int64)
+    return lo, hi
+
+
+def dp_surface_min(
+    q1: np.ndarray,
+    q2: np.ndarray,
+    r1: np.ndarray,
+    r2: np.ndarray,
+    t: np.ndarray,
+    *,
+    window: int = DEFAULT_WINDOW,
+    rotation: np.ndarray | None = None,
+    max_rounds: int = DEFAULT_DP_ROUNDS,
+    tol: float = DEFAULT_DP_TOL,
+    strip: tuple[np.ndarray, np.ndarray] | None = None,
+) -> DPResult:
+    """DP-surface-min: alternate DP over gamma with Kabsch-Umeyama over R.
+
+    Parameters
+    ----------
+    q1 : ndarray, shape (A, N-1, 3)
+        Shape function of the first surface per cell (rotated by R).
+    q2 : ndarray, shape (B, N-1, 3)
+        Shape function of the second surface per cell (reparametrized by gamma).
+    r1 : ndarray, shape (A + 1,)
+        r partition of the first surface.
+    r2 : ndarray, shape (B + 1,)
+        r partition of the second surface.
+    t : ndarray, shape (N,)
+        Common t partition.
+    window : int
+        W, the largest step (dk, dl) component. Default 10 (63 steps).
+    rotation : ndarray, shape (3, 3), optional
+        Starting R. Default: Kabsch at the identity gamma (needs A == B); R = I if A != B.
+    max_rounds : int
+        Most DP + Kabsch rounds.
+    tol : float
+        Stop when a round lowers E by less than ``tol``.
+    strip : (lo, hi), optional
+        Per-k bounds on l (see :func:`strip_bounds`).
+
+    Returns
+    -------
+    DPResult
+    """
+    if window < 1:
+        raise ValueError("window must be at least 1")
+    dt = np.diff(t)
+    c = column_covariances(q1, q2, dt)
+    norms = float(np.sum(np.diff(r1)[:, None] * dt * np.sum(q1**2, -1)))
+    norms += float(np.sum(np.diff(r2)[:, None] * dt * np.sum(q2**2, -1)))
+    step = steps(window)
+    lo, hi = strip if strip is not None else strip_bounds(len(r1), len(r2), None, 0)
+    if rotation is None:
+        if q1.shape[0] == q2.shape[0]:
+            diagonal = np.arange(q1.shape[0])
+            rotation = kabsch(np.einsum("a,akl->kl", np.diff(r1), c[diagonal, diagonal]))
+        else:
+            rotation = np.eye(3)
+    best = None
+    history = []
+    for _ in range(max_rounds):
+        g = np.einsum("kl,ablk->ab", rotation, c)
+        table, pred = _dp_table(r1, r2, g, step, lo, hi)
+        path = _backtrack(pred, step)
+        h = _path_covariance(r1, r2, path, c)
+        new_rotation = kabsch(h)
+        e = norms - 2.0 * float(np.trace(new_rotation @ h))
+        history.append(e)
+        if best is not None and e > best.energy - tol:
+            break
+        gamma = np.interp(r1, r1[path[:, 0]], r2[path[:, 1]])
+        best = DPResult(new_rotation, path, gamma, e, tuple(history))
+        rotation = new_rotation
+    return DPResult(best.rotation, best.path, best.gamma, best.energy, tuple(history))

@@ -1,0 +1,44 @@
+"""Rotations: Kabsch-Umeyama (KU3), proper rotations only.
+
+References
+----------
+Bernal & Lawrence, Section 4, Step 3 of the outline (KU3 algorithm); Kabsch (1976), Umeyama (1991).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def kabsch(h: np.ndarray) -> np.ndarray:
+    """The rotation R (det +1) that maximizes trace(R H).
+
+    With ``H = sum w q1 q2^T`` this R minimizes ``sum w |R q1 - q2|^2``.
+
+    Parameters
+    ----------
+    h : ndarray, shape (3, 3)
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+        ``R = V diag(1, 1, d) U^T`` with ``H = U S V^T`` and ``d = sign det(V U^T)``: never a reflection.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> P = np.array([[0., 1, 0], [0, 0, 1], [1, 0, 0]])
+    >>> q1 = np.random.default_rng(0).normal(size=(50, 3))
+    >>> R = kabsch(q1.T @ (q1 @ P.T))
+    >>> bool(np.allclose(R, P))
+    True
+    """
+    u, _, vt = np.linalg.svd(h)
+    d = 1.0 if np.linalg.det(vt.T @ u.T) >= 0 else -1.0
+    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+
+
+def angle_between(r1: np.ndarray, r2: np.ndarray) -> float:
+    """Angle in degrees of the rotation r1 r2^T (0 when r1 == r2)."""
+    c = (np.trace(r1 @ r2.T) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
