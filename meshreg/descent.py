@@ -20,77 +20,17 @@ from typing import Callable
 
 import numpy as np
 
+import scipy.sparse as sp
+import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
+
 from .diffeo import enforce_boundary, is_valid
+from .fields import TensorBasis, riseth_basis
 from .objective import Objective
 from .spline import GridInterpolator
 
 DEFAULT_BASIS = 5
-
-
-class RisethBasis:
-    """The L^2-orthonormal basis of vector fields tangent to the square's sides, truncated at KL.
-
-    First components: (eta(r, t), 0) with eta = sqrt2 sin(pi k r), 2 sin(pi k r) cos(2 pi l t),
-    2 sin(pi k r) sin(2 pi l t), k, l = 1..KL; second components: (0, eta(t, r)). Every field is
-    separable, so projections and syntheses are small matrix products.
-
-    Parameters
-    ----------
-    kl : int
-        KL (>= 1).
-    r : ndarray, shape (M,)
-    t : ndarray, shape (N,)
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> RisethBasis(5, np.linspace(0, 1, 11), np.linspace(0, 1, 11)).size
-    110
-    """
-
-    def __init__(self, kl: int, r: np.ndarray, t: np.ndarray):
-        if kl < 1:
-            raise ValueError("the basis size KL must be at least 1")
-        self.kl = kl
-        self.size = 2 * (kl + 2 * kl * kl)
-        self.phi_r, self.dphi_r = self._sines(r)
-        self.phi_t, self.dphi_t = self._sines(t)
-        self.psi_r, self.dpsi_r = self._fourier(r)
-        self.psi_t, self.dpsi_t = self._fourier(t)
-
-    def _sines(self, x):
-        k = np.pi * np.arange(1, self.kl + 1)
-        return np.sqrt(2) * np.sin(np.outer(x, k)), np.sqrt(2) * k * np.cos(np.outer(x, k))
-
-    def _fourier(self, x):
-        w = 2 * np.pi * np.arange(1, self.kl + 1)
-        c, s = np.cos(np.outer(x, w)), np.sin(np.outer(x, w))
-        one = np.ones((len(x), 1))
-        zero = np.zeros((len(x), 1))
-        values = np.hstack([one, np.sqrt(2) * c, np.sqrt(2) * s])
-        derivs = np.hstack([zero, -np.sqrt(2) * w * s, np.sqrt(2) * w * c])
-        return values, derivs
-
-    def project(self, density: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Directional derivatives along every basis field from a node density G (M, N, 2).
-
-        Returns the coefficients of the first-component fields (KL, 2KL+1) and of the
-        second-component fields (2KL+1, KL).
-        """
-        g1 = self.phi_r.T @ density[..., 0] @ self.psi_t
-        g2 = self.psi_r.T @ density[..., 1] @ self.phi_t
-        return g1, g2
-
-    def synthesize(self, g1: np.ndarray, g2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The field sum g_i w_i at the nodes (M, N, 2) and its Jacobian A (M, N, 2, 2)."""
-        v1 = self.phi_r @ g1 @ self.psi_t.T
-        v2 = self.psi_r @ g2 @ self.phi_t.T
-        jac = np.empty(v1.shape + (2, 2))
-        jac[..., 0, 0] = self.dphi_r @ g1 @ self.psi_t.T
-        jac[..., 0, 1] = self.phi_r @ g1 @ self.dpsi_t.T
-        jac[..., 1, 0] = self.dpsi_r @ g2 @ self.phi_t.T
-        jac[..., 1, 1] = self.psi_r @ g2 @ self.dphi_t.T
-        return np.stack([v1, v2], axis=-1), jac
+_UNIT_R = np.array([1.0, 0.0])
+_UNIT_T = np.array([0.0, 1.0])
 
 
 def max_step(jac: np.ndarray) -> float:
@@ -145,7 +85,12 @@ class DescentParams:
     step_fraction : float
         delta starts at this fraction of the Jacobian/Gale-Nikaido bound. Default 0.5.
     max_backtracks : int
-        Most halvings of delta in one iteration before the round stops. Default 30.
+        Most halvings of delta (or increases of the damping) in one iteration before the round
+        stops. Default 30.
+    damping : float
+        Initial Levenberg-Marquardt damping of :func:`gauss_newton`. Default 1e-3.
+    cg_iterations : int
+        Most conjugate-gradient iterations for a Gauss-Newton step in a local basis. Default 100.
     """
 
     basis: int = DEFAULT_BASIS
@@ -155,6 +100,8 @@ class DescentParams:
     zero_energy: float = 1e-12
     step_fraction: float = 0.5
     max_backtracks: int = 30
+    damping: float = 1e-3
+    cg_iterations: int = 100
 
 
 @dataclass
@@ -172,7 +119,7 @@ def descend(
     rotation: np.ndarray,
     h: np.ndarray,
     params: DescentParams = DescentParams(),
-    basis: RisethBasis | None = None,
+    basis: TensorBasis | None = None,
     callback: Callable[[int, float], None] | None = None,
 ) -> DescentState:
     """One round of gradient descent in h for a fixed rotation (Step 2 of the outline).
@@ -184,8 +131,8 @@ def descend(
     h : ndarray, shape (M, N, 2)
         Starting reparametrization h^(0) (valid).
     params : DescentParams
-    basis : RisethBasis, optional
-        Reused across rounds when given.
+    basis : TensorBasis, optional
+        The fields to descend along; default the Riseth basis with KL = ``params.basis``.
     callback : callable, optional
         Called as ``callback(iteration, E)`` after every accepted step.
 
@@ -194,7 +141,7 @@ def descend(
     DescentState
         The last h, E(h, R) (never above the starting E) and the accepted energies.
     """
-    basis = basis or RisethBasis(params.basis, objective.r, objective.t)
+    basis = basis or riseth_basis(params.basis, objective.r, objective.t)
     ident = objective.identity
     state = DescentState(h.copy(), objective.energy(rotation, h))
     state.history.append(state.energy)
@@ -204,10 +151,10 @@ def descend(
         interp = GridInterpolator(state.h, objective.r, objective.t)
         _, dh_dr, dh_dt = interp(ident[..., 0], ident[..., 1])
         _, density = objective.gradient(rotation, state.h, dh_dr, dh_dt)
-        g1, g2 = basis.project(density)
-        if np.sqrt(np.sum(g1 * g1) + np.sum(g2 * g2)) < params.grad_tol:
+        coef = basis.project(density)
+        if np.linalg.norm(coef) < params.grad_tol:
             break
-        field_, jac = basis.synthesize(g1, g2)
+        field_, jac = basis.synthesize(coef)
         bound = max_step(jac)
         if not np.isfinite(bound):
             break
@@ -233,3 +180,88 @@ def descend(
         if previous - state.energy < params.rel_tol * previous:
             break
     return state
+
+
+def gauss_newton(
+    objective: Objective,
+    rotation: np.ndarray,
+    h: np.ndarray,
+    params: DescentParams = DescentParams(),
+    basis: TensorBasis | None = None,
+    callback: Callable[[int, float], None] | None = None,
+    additive: bool = False,
+) -> DescentState:
+    """Descent in h along Gauss-Newton directions in the span of the basis (Levenberg-Marquardt).
+
+    E is a sum of squares, ``|res|^2``; the step v = sum c_i w_i solves
+    ``(J J^T + lam diag(J J^T)) c = -J res`` (J: derivatives of res along the basis fields, the
+    same directional derivatives as Theorem 2), so it is the gradient of the paper's Step 2
+    preconditioned by the Gauss-Newton metric. The update h o (id + delta v) uses delta = 1 capped
+    by ``step_fraction`` times the det / Gale-Nikaido bound, and lam grows while E does not drop or
+    h stops being valid. With ``additive=True`` the update is h + v instead (no interpolation of
+    h, so local fields can move single nodes exactly; used by the B-spline refinement).
+    Other arguments and the result as for :func:`descend`.
+    """
+    basis = basis or riseth_basis(params.basis, objective.r, objective.t)
+    fields = basis.matrix()
+    ident = objective.identity
+    state = DescentState(h.copy(), objective.energy(rotation, h))
+    state.history.append(state.energy)
+    lam = params.damping
+    for _ in range(params.max_iterations):
+        if state.energy <= params.zero_energy:
+            break
+        if additive:
+            dh_dr, dh_dt = _UNIT_R, _UNIT_T
+        else:
+            interp = GridInterpolator(state.h, objective.r, objective.t)
+            _, dh_dr, dh_dt = interp(ident[..., 0], ident[..., 1])
+        res, node_jac = objective.linearize(rotation, state.h, dh_dr, dh_dt)
+        jac = (node_jac @ fields) if basis.sparse else (node_jac.tocsc() @ fields)
+        normal = jac.T @ jac
+        rhs = -(jac.T @ res)
+        if 2 * np.linalg.norm(rhs) < params.grad_tol:
+            break
+        diag = normal.diagonal()
+        scale = diag + 1e-12 * diag.sum() / len(rhs)
+        accepted = None
+        for _ in range(params.max_backtracks):
+            coef = _solve(normal, lam * scale, rhs, params.cg_iterations)
+            field_, jac_v = basis.synthesize(coef)
+            if additive:
+                candidate = enforce_boundary(state.h + field_)
+            else:
+                delta = min(1.0, params.step_fraction * max_step(-jac_v))
+                g = enforce_boundary(ident + delta * field_)
+                candidate = enforce_boundary(interp(g[..., 0], g[..., 1])[0])
+            if is_valid(candidate):
+                e = objective.energy(rotation, candidate)
+                if e < state.energy:
+                    accepted = (candidate, e)
+                    break
+            lam = max(lam, 1e-6) * 4.0
+        if accepted is None:
+            break
+        lam = max(lam / 3.0, 1e-9)
+        previous = state.energy
+        state.h, state.energy = accepted
+        state.history.append(state.energy)
+        state.iterations += 1
+        if callback is not None:
+            callback(state.iterations, state.energy)
+        if previous - state.energy < params.rel_tol * previous:
+            break
+    return state
+
+
+def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:
+    """Solve (normal + diag(shift)) x = rhs: dense LU, or Jacobi-preconditioned CG when sparse.
+
+    The sparse (local-basis) systems are only a Gauss-Newton step, so an inexact solve by
+    ``cg_iterations`` CG iterations is enough (the energy test accepts or rejects the step).
+    """
+    if sp.issparse(normal):
+        matrix = (normal + sp.diags(shift)).tocsr()
+        x, _ = sp.linalg.cg(matrix, rhs, M=sp.diags(1.0 / matrix.diagonal()), maxiter=cg_iterations, rtol=1e-10)
+        return x
+    return np.linalg.solve(normal + np.diag(shift), rhs)

@@ -18,11 +18,12 @@ v on the square, for the composition h o (id + tau v)).
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from .diffeo import identity
 from .grid import GridSurface
 from .spline import GridInterpolator
-from .srnf import cell_weights, cross_covariance, energy_gradient_points, shape_function
+from .srnf import cell_weights, cross_covariance, energy_gradient_points, shape_function, shape_function_jacobians
 
 
 class Objective:
@@ -83,12 +84,57 @@ class Objective:
         """
         pts, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
         e, g_pts = energy_gradient_points(self.q1 @ rotation.T, pts, self.weights)
-        # D(c2 o h) = Dc2(h) Dh: columns d/dr and d/dt of the composite surface
-        d_dr = dc_du * dh_dr[..., :1] + dc_dv * dh_dr[..., 1:]
-        d_dt = dc_du * dh_dt[..., :1] + dc_dv * dh_dt[..., 1:]
+        d_dr, d_dt = _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt)
         grad = np.stack([np.sum(g_pts * d_dr, axis=-1), np.sum(g_pts * d_dt, axis=-1)], axis=-1)
         return e, grad
+
+    def linearize(self, rotation: np.ndarray, h: np.ndarray, dh_dr: np.ndarray, dh_dt: np.ndarray):
+        """Residuals of E(h, R) and their derivatives along node displacements composed on h.
+
+        E = |res|^2 with ``res = sqrt(w) (R q1 - (q2, h))`` flattened; for a field v on the square,
+        ``res(h o (id + v)) = res + jac @ v.ravel() + O(|v|^2)`` with v given at the nodes (M, N, 2).
+
+        Parameters
+        ----------
+        rotation : ndarray, shape (3, 3)
+        h, dh_dr, dh_dt : ndarray, shape (M, N, 2)
+            h and its partial derivatives at the nodes.
+
+        Returns
+        -------
+        res : ndarray, shape (3 (M-1) (N-1),)
+        jac : scipy.sparse.csr_matrix, shape (3 (M-1) (N-1), 2 M N)
+        """
+        pts, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
+        d_dr, d_dt = _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt)
+        node_jac = np.stack([d_dr, d_dt], axis=-1)  # (M, N, 3, 2)
+        q, cell_jac = shape_function_jacobians(pts, self.weights)
+        sw = np.sqrt(self.weights)[..., None]
+        res = sw * (self.q1 @ rotation.T - q)
+        m, n = h.shape[:2]
+        cells = np.arange((m - 1) * (n - 1)).reshape(m - 1, n - 1)
+        nodes = np.arange(m * n).reshape(m, n)
+        rows = (cells[..., None, None] * 3 + np.arange(3)[:, None]).repeat(2, axis=-1)
+        data, row_idx, col_idx = [], [], []
+        for c, (di, dj) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+            corner = (slice(di, m - 1 + di), slice(dj, n - 1 + dj))
+            k = -sw[..., None] * (cell_jac[c] @ node_jac[corner])  # (M-1, N-1, 3, 2)
+            cols = nodes[corner][..., None, None] * 2 + np.arange(2)
+            data.append(k.ravel())
+            row_idx.append(rows.ravel())
+            col_idx.append(np.broadcast_to(cols, k.shape).ravel())
+        jac = sp.csr_matrix(
+            (np.concatenate(data), (np.concatenate(row_idx), np.concatenate(col_idx))), shape=(res.size, 2 * m * n)
+        )
+        return res.ravel(), jac
 
     def second_on_first_grid(self, h: np.ndarray | None = None) -> np.ndarray:
         """q of the second surface resampled at h (identity by default) on the first's grid."""
         return self.q2(self.identity if h is None else h)
+
+
+def _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt):
+    """Columns d/dr and d/dt of D(c2 o h) = Dc2(h) Dh, each (M, N, 3)."""
+    d_dr = dc_du * dh_dr[..., :1] + dc_dv * dh_dr[..., 1:]
+    d_dt = dc_du * dh_dt[..., :1] + dc_dv * dh_dt[..., 1:]
+    return d_dr, d_dt

@@ -112,3 +112,39 @@ def energy_gradient_points(target: np.ndarray, points: np.ndarray, weights: np.n
     grad[:-1, 1:] += g_d2
     grad[1:, :-1] -= g_d2
     return e, grad
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    """Matrices S(a) with S(a) b = a x b, shape a.shape + (3,)."""
+    s = np.zeros(a.shape + (3,))
+    s[..., 0, 1], s[..., 0, 2] = -a[..., 2], a[..., 1]
+    s[..., 1, 0], s[..., 1, 2] = a[..., 2], -a[..., 0]
+    s[..., 2, 0], s[..., 2, 1] = -a[..., 1], a[..., 0]
+    return s
+
+
+def shape_function_jacobians(points: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """q per cell and its derivatives with respect to the cell's four corner points.
+
+    Parameters
+    ----------
+    points : ndarray, shape (M, N, 3)
+    weights : ndarray, shape (M-1, N-1)
+
+    Returns
+    -------
+    q : ndarray, shape (M-1, N-1, 3)
+    jac : ndarray, shape (4, M-1, N-1, 3, 3)
+        ``jac[c]`` maps a displacement of corner c (order c00, c10, c01, c11) to the change of q.
+    """
+    d1 = points[1:, 1:] - points[:-1, :-1]
+    d2 = points[:-1, 1:] - points[1:, :-1]
+    w = weights[..., None]
+    v = 0.5 * np.cross(d1, d2) / w
+    norm = np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), _TINY)
+    q = v / np.sqrt(norm)
+    vhat = v / norm
+    dq_dn = (np.eye(3) - 0.5 * vhat[..., :, None] * vhat[..., None, :]) / (np.sqrt(norm) * w)[..., None]
+    s1 = 0.5 * dq_dn @ _skew(d1)
+    s2 = 0.5 * dq_dn @ _skew(d2)
+    return q, np.stack([s2, -s1, s1, -s2])
