@@ -38,7 +38,7 @@ import numpy as np
 from .descent import DescentParams, descend, gauss_newton
 from .diffeo import compose
 from .dp import DEFAULT_DP_ROUNDS, DEFAULT_WINDOW, dp_surface_min
-from .fields import node_basis, riseth_basis
+from .fields import bspline_basis, node_basis, riseth_basis
 from .errors import InputError
 from .grid import GridSurface, read_grid
 from .objective import Objective
@@ -48,6 +48,8 @@ MODES = ("auto", "dp", "gd", "dp+gd")
 DEFAULT_MODE = "auto"
 SOLVERS = ("gauss-newton", "gradient")
 REFINEMENTS = ("nodes", "none")
+# coarse-to-fine refinement: cubic B-spline fields on 12 and 24 knots per axis, then every node
+REFINE_LEVELS = (12, 24, "nodes")
 DEFAULT_ROUNDS = 10
 DEFAULT_ROUND_TOL = 1e-4
 
@@ -233,9 +235,16 @@ def register(
         timings["gd"] = time.perf_counter() - tic
         if refine == "nodes":
             tic = time.perf_counter()
-            nodes = node_basis(objective.r, objective.t)
-            stage = lambda o, R, hh, p, cb: gauss_newton(o, R, hh, p, nodes, cb, additive=True)  # noqa: E731
-            rotation, h = _alternate(objective, rotation, h, stage, descent, max_rounds, round_tol, history, track("refine"), notify)
+            for level in REFINE_LEVELS:
+                m, n = objective.first.shape
+                if level == "nodes":
+                    fields, additive = node_basis(objective.r, objective.t), True
+                elif level < min(m, n) // 2:
+                    fields, additive = bspline_basis(level, objective.r, objective.t), False
+                else:
+                    continue
+                stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
+                rotation, h = _alternate(objective, rotation, h, stage, descent, max_rounds, round_tol, history, track("refine"), notify)
             timings["refine"] = time.perf_counter() - tic
     energy = objective.energy(rotation, h)
     if not history:
@@ -305,6 +314,8 @@ def _alternate(objective, rotation, h, stage, params, max_rounds, round_tol, his
     for _ in range(max_rounds):
         state = stage(objective, rotation, h, params, on_step)
         h = state.h
+        if state.rotation is not None:
+            rotation = state.rotation
         new_rotation = kabsch(objective.best_rotation_covariance(h))
         new_energy = objective.energy(new_rotation, h)
         if new_energy < state.energy:
@@ -312,6 +323,6 @@ def _alternate(objective, rotation, h, stage, params, max_rounds, round_tol, his
             history.append(new_energy)
             notify("kabsch", 0, new_energy)
         energy_before, energy = energy, min(new_energy, state.energy)
-        if energy <= params.zero_energy or energy_before - energy < round_tol * energy_before:
+        if energy <= params.zero_energy or energy_before - energy < round_tol * energy_before + params.abs_tol:
             break
     return rotation, h

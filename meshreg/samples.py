@@ -52,6 +52,22 @@ PERTURBATIONS: dict[str, tuple[Callable, Callable]] = {
 }
 
 
+def bump() -> Param:
+    """A graph with two Gaussian bumps and a tilt, not symmetric under any symmetry of the square."""
+    return lambda r, t: np.stack(
+        [r, t, 0.6 * np.exp(-((r - 0.3) ** 2 + (t - 0.6) ** 2) / 0.05) - 0.3 * np.exp(-((r - 0.7) ** 2 + (t - 0.3) ** 2) / 0.02) + 0.2 * r],
+        axis=-1,
+    )
+
+
+def warp(a: float = 0.08) -> Callable:
+    """A non-separable smooth diffeomorphism of the square that keeps each side on itself (|a| < 0.2).
+
+    gamma(r, t) = (r + a sin(pi r) sin(2 pi t), t + a sin(pi t) sin(2 pi r)).
+    """
+    return lambda r, t: (r + a * np.sin(np.pi * r) * np.sin(2 * np.pi * t), t + a * np.sin(np.pi * t) * np.sin(2 * np.pi * r))
+
+
 def sample(c: Param, m: int = 101, n: int = 101, gamma: Callable | None = None) -> GridSurface:
     """Sample ``c`` on a uniform m x n grid, at gamma(r_i, t_j) when gamma is given."""
     r, t = np.meshgrid(np.linspace(0, 1, m), np.linspace(0, 1, n), indexing="ij")

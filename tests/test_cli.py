@@ -1,0 +1,77 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from meshreg.cli import main
+from meshreg.register import Registration
+from meshreg.samples import paper_pairs
+
+
+@pytest.fixture(scope="module")
+def grid_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("grids")
+    pair = paper_pairs(21, 21)[6]
+    np.save(d / "first.npy", pair.first.points)
+    np.save(d / "second.npy", pair.second.points)
+    return d
+
+
+def test_register_writes_result_and_figure(grid_files, tmp_path, capsys):
+    before = (grid_files / "first.npy").read_bytes()
+    code = main(["register", str(grid_files / "first.npy"), str(grid_files / "second.npy"), "-o", str(tmp_path / "out"), "-q"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "energy E" in out and "rotation R" in out
+    result = Registration.load(tmp_path / "out" / "result.npz")
+    assert result.energy < 1e-6
+    assert (tmp_path / "out" / "registration.png").stat().st_size > 1000
+    assert (grid_files / "first.npy").read_bytes() == before
+
+
+def test_console_script_runs_paper_mode(grid_files, tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "meshreg.cli", "register", str(grid_files / "first.npy"), str(grid_files / "second.npy"),
+         "-o", str(tmp_path), "--mode", "dp", "--window", "7", "-q"],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert Registration.load(tmp_path / "result.npz").params["window"] == 7
+
+
+def _write(path, array):
+    np.save(path, array)
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda d: str(d / "missing.npy"), "no such file"),
+        (lambda d: _write(d / "nan.npy", np.full((5, 5, 3), np.nan)), "NaN"),
+        (lambda d: _write(d / "small.npy", np.random.rand(2, 5, 3)), "at least 3x3"),
+        (lambda d: _write(d / "flat.npy", np.zeros((5, 5, 3))), "zero area"),
+        (lambda d: _write(d / "shape.npy", np.zeros((5, 5))), "shape"),
+    ],
+)
+def test_bad_input_exits_nonzero_with_one_line(grid_files, tmp_path, make, message):
+    bad = make(tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-m", "meshreg.cli", "register", bad, str(grid_files / "second.npy"), "-o", str(tmp_path / "o"), "-q"],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 2
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o" / "result.npz").exists()
+
+
+def test_output_never_overwrites_an_input(tmp_path, capsys):
+    pair = paper_pairs(11, 11)[0]
+    np.savez(tmp_path / "result.npz", points=pair.first.points)
+    np.save(tmp_path / "b.npy", pair.second.points)
+    before = (tmp_path / "result.npz").read_bytes()
+    assert main(["register", str(tmp_path / "result.npz"), str(tmp_path / "b.npy"), "-o", str(tmp_path), "-q"]) == 2
+    assert "is an input file" in capsys.readouterr().err
+    assert (tmp_path / "result.npz").read_bytes() == before
