@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+import scipy.linalg
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
@@ -30,6 +31,7 @@ from .objective import Objective
 from .spline import GridInterpolator
 
 DEFAULT_BASIS = 5
+DENSE_LIMIT = 2000
 _UNIT_R = np.array([1.0, 0.0])
 _UNIT_T = np.array([0.0, 1.0])
 
@@ -78,7 +80,7 @@ class DescentParams:
     max_iterations : int
         Most descent iterations per round (between two Kabsch steps). Default 200.
     rel_tol : float
-        A round stops when an iteration lowers E by less than ``rel_tol * E + abs_tol``. Default 1e-4.
+        A round stops when an iteration lowers E by less than ``rel_tol * E + abs_tol``. Default 1e-3.
     abs_tol : float
         See ``rel_tol``. Default 1e-11 (E itself is only accurate to about 1e-9 on 101 x 101 grids).
     grad_tol : float
@@ -98,7 +100,7 @@ class DescentParams:
 
     basis: int = DEFAULT_BASIS
     max_iterations: int = 200
-    rel_tol: float = 1e-4
+    rel_tol: float = 1e-3
     abs_tol: float = 1e-11
     grad_tol: float = 1e-10
     zero_energy: float = 1e-10
@@ -285,13 +287,18 @@ def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray):
 
 
 def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:
-    """Solve (normal + diag(shift)) x = rhs: dense LU, or Jacobi-preconditioned CG when sparse.
+    """Solve (normal + diag(shift)) x = rhs (symmetric positive definite).
 
-    The sparse (local-basis) systems are only a Gauss-Newton step, so an inexact solve by
-    ``cg_iterations`` CG iterations is enough (the energy test accepts or rejects the step).
+    Up to ``DENSE_LIMIT`` unknowns by Cholesky; beyond (the node basis), by Jacobi-preconditioned
+    CG stopped after ``cg_iterations``: the result is only a Gauss-Newton step, which the energy
+    test accepts or rejects, so an inexact solve is enough.
     """
-    if sp.issparse(normal):
-        matrix = (normal + sp.diags(shift)).tocsr()
-        x, _ = sp.linalg.cg(matrix, rhs, M=sp.diags(1.0 / matrix.diagonal()), maxiter=cg_iterations, rtol=1e-10)
-        return x
-    return np.linalg.solve(normal + np.diag(shift), rhs)
+    if normal.shape[0] <= DENSE_LIMIT:
+        dense = normal.toarray() if sp.issparse(normal) else normal
+        try:
+            return scipy.linalg.cho_solve(scipy.linalg.cho_factor(dense + np.diag(shift)), rhs)
+        except np.linalg.LinAlgError:
+            return np.linalg.lstsq(dense + np.diag(shift), rhs, rcond=None)[0]
+    matrix = (normal + sp.diags(shift)).tocsr()
+    x, _ = sp.linalg.cg(matrix, rhs, M=sp.diags(1.0 / matrix.diagonal()), maxiter=cg_iterations, rtol=1e-10)
+    return x

@@ -49,7 +49,7 @@ DEFAULT_MODE = "auto"
 SOLVERS = ("gauss-newton", "gradient")
 REFINEMENTS = ("nodes", "none")
 # coarse-to-fine refinement: cubic B-spline fields on 12 and 24 knots per axis, then every node
-REFINE_LEVELS = (12, 24, "nodes")
+REFINE_KNOTS = (12, 24)
 DEFAULT_ROUNDS = 10
 DEFAULT_ROUND_TOL = 1e-4
 
@@ -183,7 +183,8 @@ def register(
     max_rounds : int
         Most descent + Kabsch rounds per stage (Step 3 of the outline). Default 10.
     round_tol : float
-        Rounds stop when a round lowers E by less than ``round_tol * E``. Default 1e-4.
+        Rounds stop when the Kabsch step after a descent lowers E by less than ``round_tol * E``.
+        Default 1e-4.
     descent : DescentParams, optional
         Descent parameters; keyword arguments named like its fields (``basis``, ``rel_tol``, ...)
         override single fields.
@@ -235,14 +236,7 @@ def register(
         timings["gd"] = time.perf_counter() - tic
         if refine == "nodes":
             tic = time.perf_counter()
-            for level in REFINE_LEVELS:
-                m, n = objective.first.shape
-                if level == "nodes":
-                    fields, additive = node_basis(objective.r, objective.t), True
-                elif level < min(m, n) // 2:
-                    fields, additive = bspline_basis(level, objective.r, objective.t), False
-                else:
-                    continue
+            for fields, additive in _refinement_bases(objective):
                 stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
                 rotation, h = _alternate(objective, rotation, h, stage, descent, max_rounds, round_tol, history, track("refine"), notify)
             timings["refine"] = time.perf_counter() - tic
@@ -276,6 +270,15 @@ def register(
     )
 
 
+def _refinement_bases(objective: Objective):
+    """(basis, additive) of each refinement level: B-splines coarse to fine (composed), then nodes."""
+    m, n = objective.first.shape
+    for knots in REFINE_KNOTS:
+        if knots < min(m, n) // 2:
+            yield bspline_basis(knots, objective.r, objective.t), False
+    yield node_basis(objective.r, objective.t), True
+
+
 def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: bool):
     """One DP-surface-min pass on (q1, (q2, h)) along r or t; returns R, h o (gamma step), E."""
     q1, q2 = objective.q1, objective.second_on_first_grid(h)
@@ -307,10 +310,9 @@ def _dp_stage(objective: Objective, window: int, dp_rounds: int, both: bool):
 
 
 def _alternate(objective, rotation, h, stage, params, max_rounds, round_tol, history, on_step, notify):
-    """Steps 2-3 of the outline: descent in h, then Kabsch in R, until a round stops helping."""
-    energy = objective.energy(rotation, h)
+    """Steps 2-3 of the outline: descent in h, then Kabsch in R, until Kabsch stops helping."""
     if not history:
-        history.append(energy)
+        history.append(objective.energy(rotation, h))
     for _ in range(max_rounds):
         state = stage(objective, rotation, h, params, on_step)
         h = state.h
@@ -322,7 +324,8 @@ def _alternate(objective, rotation, h, stage, params, max_rounds, round_tol, his
             rotation = new_rotation
             history.append(new_energy)
             notify("kabsch", 0, new_energy)
-        energy_before, energy = energy, min(new_energy, state.energy)
-        if energy <= params.zero_energy or energy_before - energy < round_tol * energy_before + params.abs_tol:
+        energy = min(new_energy, state.energy)
+        # Step 3: another round only when Kabsch lowered E by much (E_L = E after the descent)
+        if energy <= params.zero_energy or state.energy - energy < round_tol * state.energy + params.abs_tol:
             break
     return rotation, h

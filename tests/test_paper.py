@@ -1,0 +1,48 @@
+"""The paper's experiments on 101 x 101 grids: meshreg against the numbers published in Section 5."""
+
+import numpy as np
+import pytest
+
+import meshreg
+from meshreg.rotation import angle_between
+from meshreg.samples import paper_pairs
+
+PAIRS = {p.name: p for p in paper_pairs()}
+SAME_SHAPE = [n for n, p in PAIRS.items() if p.same_shape]
+
+
+@pytest.mark.parametrize("name", SAME_SHAPE + ["sine2-3 g1", "sine2-3 g2"])
+def test_dp_gd_reaches_the_papers_energy(name):
+    pair = PAIRS[name]
+    result = meshreg.register(pair.first, pair.second, mode="dp+gd")
+    assert result.energy <= pair.paper["dp+gd"]
+    if pair.same_shape:
+        assert result.energy < 1e-8
+        assert angle_between(result.rotation, pair.rotation) < 0.01
+
+
+@pytest.mark.parametrize("name", SAME_SHAPE)
+def test_auto_finds_the_true_answer(name):
+    pair = PAIRS[name]
+    result = meshreg.register(pair.first, pair.second)
+    assert result.energy <= 1e-8
+    assert angle_between(result.rotation, pair.rotation) < 0.01
+    h_true = pair.h_true(result.h[..., 0] * 0 + result.r[:, None], result.h[..., 1] * 0 + result.t[None, :])
+    assert np.abs(result.h - h_true).max() < 5e-3
+
+
+@pytest.mark.parametrize("name", ["sine2-3 g1", "sine2-3 g2", "sine2-2 g2", "helicoid4 g2", "cossin g2"])
+def test_dp_matches_the_papers_dp_column(name):
+    """Within 15% of the paper's DP energy, or below it (pairs whose DP energy is above 0.01)."""
+    pair = PAIRS[name]
+    result = meshreg.register(pair.first, pair.second, mode="dp")
+    assert result.energy <= 1.15 * pair.paper["dp"]
+    assert result.energy >= 0.85 * pair.paper["dp"] or not pair.same_shape
+
+
+@pytest.mark.parametrize("name", ["sine2-2 g1", "helicoid4 g1", "cossin g1"])
+def test_dp_on_r_perturbations_is_near_zero_with_the_true_rotation(name):
+    pair = PAIRS[name]
+    result = meshreg.register(pair.first, pair.second, mode="dp")
+    assert result.energy < 1e-3
+    assert angle_between(result.rotation, pair.rotation) < 0.1
