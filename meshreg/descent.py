@@ -82,7 +82,8 @@ class DescentParams:
     rel_tol : float
         A round stops when an iteration lowers E by less than ``rel_tol * E + abs_tol``. Default 1e-3.
     abs_tol : float
-        See ``rel_tol``. Default 1e-11 (E itself is only accurate to about 1e-9 on 101 x 101 grids).
+        See ``rel_tol``. Default 1e-9 (E itself is only accurate to about 1e-9 on 101 x 101 grids:
+        with the exact h, the paper's same-shape pairs give E = 4e-10 to 2e-9).
     grad_tol : float
         A round stops when the L^2 norm of the gradient is below this. Default 1e-10.
     zero_energy : float
@@ -101,7 +102,7 @@ class DescentParams:
     basis: int = DEFAULT_BASIS
     max_iterations: int = 200
     rel_tol: float = 1e-3
-    abs_tol: float = 1e-11
+    abs_tol: float = 1e-9
     grad_tol: float = 1e-10
     zero_energy: float = 1e-10
     step_fraction: float = 0.5

@@ -35,11 +35,15 @@ class Objective:
         The surface that is rotated; its grid nodes are where h is sampled.
     second : GridSurface
         The surface that is reparametrized (may have another grid size).
+    second_area : float, optional
+        Area to scale the second surface by (default: its own). Given when ``second`` is a copy
+        under a symmetry of the square, whose two-triangle area differs in the last digits.
     """
 
-    def __init__(self, first: GridSurface, second: GridSurface):
+    def __init__(self, first: GridSurface, second: GridSurface, second_area: float | None = None):
         self.first = first.scaled()
-        self.second = second.scaled()
+        area = second.area() if second_area is None else second_area
+        self.second = GridSurface(second.points / np.sqrt(area), second.r, second.t)
         self.r, self.t = self.first.r, self.first.t
         self.weights = cell_weights(self.r, self.t)
         self.q1 = shape_function(self.first.points, self.r, self.t)

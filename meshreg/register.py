@@ -43,11 +43,14 @@ from .errors import InputError
 from .grid import GridSurface, read_grid
 from .objective import Objective
 from .rotation import kabsch
+from .search import apply_symmetry, best_start, symmetry_map
 
 MODES = ("auto", "dp", "gd", "dp+gd")
 DEFAULT_MODE = "auto"
 SOLVERS = ("gauss-newton", "gradient")
 REFINEMENTS = ("nodes", "none")
+# a symmetry of the square other than the identity must beat it by this fraction (coarse DP energy)
+SYMMETRY_MARGIN = 0.05
 # coarse-to-fine refinement: cubic B-spline fields on 12 and 24 knots per axis, then every node
 REFINE_KNOTS = (12, 24)
 DEFAULT_ROUNDS = 10
@@ -79,7 +82,12 @@ class Registration:
     params : dict
         Every parameter that produced the result.
     timings : dict
-        Seconds per stage (``dp``, ``gd``, ``total``).
+        Seconds per stage (``search``, ``dp``, ``gd``, ``refine``, ``total``).
+    symmetry : int
+        Index into :data:`meshreg.search.SQUARE_SYMMETRIES` of the symmetry of the square applied
+        to the second surface first (0: none). h includes it: h = sigma o h', with h' the
+        orientation-preserving reparametrization found for the symmetric copy, so h itself
+        reverses orientation when sigma does.
     """
 
     rotation: np.ndarray
@@ -92,6 +100,7 @@ class Registration:
     mode: str
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    symmetry: int = 0
 
     @property
     def distance(self) -> float:
@@ -117,6 +126,7 @@ class Registration:
             mode=self.mode,
             params=json.dumps(self.params),
             timings=json.dumps(self.timings),
+            symmetry=self.symmetry,
         )
 
     @classmethod
@@ -135,6 +145,7 @@ class Registration:
                     mode=str(data["mode"]),
                     params=json.loads(str(data["params"])),
                     timings=json.loads(str(data["timings"])),
+                    symmetry=int(data["symmetry"]) if "symmetry" in data else 0,
                 )
         except (OSError, KeyError, ValueError) as err:
             raise InputError(f"{path}: not a meshreg result file ({err})") from None
@@ -161,6 +172,8 @@ def register(
     max_rounds: int = DEFAULT_ROUNDS,
     round_tol: float = DEFAULT_ROUND_TOL,
     descent: DescentParams | None = None,
+    search: bool = True,
+    symmetries: bool = True,
     callback: Progress | None = None,
     **descent_params,
 ) -> Registration:
@@ -185,6 +198,13 @@ def register(
     round_tol : float
         Rounds stop when the Kabsch step after a descent lowers E by less than ``round_tol * E``.
         Default 1e-4.
+    search : bool
+        In "auto": rank starting rotations (Kabsch at the identity, the cube's 24 rotations, the
+        principal axes) by a coarse DP before the DP stage (:func:`meshreg.search.best_start`).
+        Default True.
+    symmetries : bool
+        In "auto" with ``search``: also try the 8 symmetries of the square as a first
+        reparametrization of the second surface. Default True.
     descent : DescentParams, optional
         Descent parameters; keyword arguments named like its fields (``basis``, ``rel_tol``, ...)
         override single fields.
@@ -214,15 +234,28 @@ def register(
     except TypeError as err:
         raise InputError(f"unknown parameter: {err}") from None
     start = time.perf_counter()
-    objective = Objective(as_surface(first), as_surface(second))
-    notify = callback or (lambda stage, iteration, e: None)
+    first, second = as_surface(first), as_surface(second)
+    second_area = second.area()
+    symmetry, start_rotation = 0, None
     timings = {}
+    if mode == "auto" and search:
+        tic = time.perf_counter()
+        starts = best_start(first, second, symmetries=symmetries)
+        best = starts[0]
+        identity_start = next(s for s in starts if s.symmetry == 0)
+        if identity_start.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
+            best = identity_start  # ties (surfaces with a mirror symmetry) keep the given parametrization
+        symmetry, start_rotation = best.symmetry, best.rotation
+        second = apply_symmetry(second, symmetry)
+        timings["search"] = time.perf_counter() - tic
+    objective = Objective(first, second, second_area)
+    notify = callback or (lambda stage, iteration, e: None)
     rotation, h = np.eye(3), objective.identity.copy()
     energy_dp = float("nan")
     history = []
     if mode != "gd":
         tic = time.perf_counter()
-        rotation, h, energy_dp = _dp_stage(objective, window, dp_rounds, both=mode == "auto")
+        rotation, h, energy_dp = _dp_stage(objective, window, dp_rounds, mode == "auto", start_rotation)
         history.append(energy_dp)
         notify("dp", 0, energy_dp)
         timings["dp"] = time.perf_counter() - tic
@@ -241,6 +274,7 @@ def register(
                 rotation, h = _alternate(objective, rotation, h, stage, descent, max_rounds, round_tol, history, track("refine"), notify)
             timings["refine"] = time.perf_counter() - tic
     energy = objective.energy(rotation, h)
+    h = symmetry_map(symmetry, h)
     if not history:
         history.append(energy)
     timings["total"] = time.perf_counter() - start
@@ -253,6 +287,8 @@ def register(
         "max_rounds": max_rounds,
         "round_tol": round_tol,
         **asdict(descent),
+        "search": search,
+        "symmetries": symmetries,
         "grid_first": list(objective.first.shape),
         "grid_second": list(objective.second.shape),
     }
@@ -267,6 +303,7 @@ def register(
         mode=mode,
         params=params,
         timings=timings,
+        symmetry=symmetry,
     )
 
 
@@ -295,9 +332,12 @@ def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: boo
     return result.rotation, h, objective.energy(result.rotation, h)
 
 
-def _dp_stage(objective: Objective, window: int, dp_rounds: int, both: bool):
-    """DP-surface-min along r (the paper); with ``both``, alternate passes along t and r while E drops."""
-    rotation, h, energy = _dp_along(objective, None, None, window, dp_rounds, along_t=False)
+def _dp_stage(objective: Objective, window: int, dp_rounds: int, both: bool, rotation=None):
+    """DP-surface-min along r (the paper); with ``both``, alternate passes along t and r while E drops.
+
+    The DP starts from ``rotation``, or from Kabsch at the identity when it is None.
+    """
+    rotation, h, energy = _dp_along(objective, rotation, None, window, dp_rounds, along_t=False)
     if both:
         for p in range(2 * dp_rounds):
             new_rotation, new_h, new_energy = _dp_along(objective, rotation, h, window, dp_rounds, along_t=p % 2 == 0)

@@ -1,0 +1,148 @@
+"""Global search for a starting point: symmetries of the square and candidate rotations.
+
+The descent only finds the minimum of the basin it starts in. Two things put it in the wrong basin:
+
+* the corner of the second surface's parametrization that is (0, 0), and whether r and t are
+  swapped (arbitrary for meshes mapped to the square): the 8 symmetries of the square;
+* a rotation far from the one Kabsch finds at the identity correspondence.
+
+:func:`best_start` tries every symmetry with rotation candidates (Kabsch at the identity, the 24
+rotations of the cube's symmetry group, and the 4 proper alignments of the principal axes),
+ranks them by DP-surface-min on coarse grids, and returns the best.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import product
+
+import numpy as np
+
+from .dp import dp_surface_min
+from .grid import GridSurface
+from .objective import Objective
+from .rotation import kabsch
+from .spline import GridInterpolator
+
+# (swap r and t, flip r, flip t); index 0 is the identity
+SQUARE_SYMMETRIES = tuple(product((False, True), repeat=3))
+DEFAULT_SEARCH_GRID = 21
+DEFAULT_SEARCH_WINDOW = 6
+
+
+def apply_symmetry(surface: GridSurface, k: int) -> GridSurface:
+    """The surface reparametrized by the k-th symmetry of the square: points'[i, j] = c(sigma_k(r'_i, t'_j))."""
+    swap, flip_r, flip_t = SQUARE_SYMMETRIES[k]
+    p, r, t = surface.points, surface.r, surface.t
+    if swap:
+        p, r, t = p.transpose(1, 0, 2), t, r
+    if flip_r:
+        p, r = p[::-1], 1.0 - r[::-1]
+    if flip_t:
+        p, t = p[:, ::-1], 1.0 - t[::-1]
+    return GridSurface(np.ascontiguousarray(p), r, t)
+
+
+def symmetry_map(k: int, uv: np.ndarray) -> np.ndarray:
+    """sigma_k applied to points (..., 2) of the square: where (u, v) of the symmetric copy lies on the original."""
+    swap, flip_r, flip_t = SQUARE_SYMMETRIES[k]
+    u, v = uv[..., 0], uv[..., 1]
+    if flip_r:
+        u = 1.0 - u
+    if flip_t:
+        v = 1.0 - v
+    if swap:
+        u, v = v, u
+    return np.stack([u, v], axis=-1)
+
+
+def cube_rotations() -> np.ndarray:
+    """The 24 rotations of the cube's symmetry group (signed permutation matrices with det +1), (24, 3, 3)."""
+    out = []
+    for perm in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)):
+        for signs in product((1.0, -1.0), repeat=3):
+            m = np.zeros((3, 3))
+            m[range(3), perm] = signs
+            if np.linalg.det(m) > 0:
+                out.append(m)
+    return np.array(out)
+
+
+def _principal_axes(surface: GridSurface) -> np.ndarray:
+    """Eigenvectors (columns, decreasing variance) of the area-weighted covariance of the points."""
+    c = surface.points
+    centres = 0.25 * (c[1:, 1:] + c[:-1, :-1] + c[1:, :-1] + c[:-1, 1:]).reshape(-1, 3)
+    n = 0.5 * np.cross(c[1:, 1:] - c[:-1, :-1], c[:-1, 1:] - c[1:, :-1]).reshape(-1, 3)
+    w = np.linalg.norm(n, axis=1)
+    mean = (w[:, None] * centres).sum(0) / w.sum()
+    d = centres - mean
+    _, vecs = np.linalg.eigh((w[:, None] * d).T @ d)
+    return vecs[:, ::-1]
+
+
+def principal_rotations(first: GridSurface, second: GridSurface) -> np.ndarray:
+    """The 4 rotations taking the first surface's principal axes onto the second's, (4, 3, 3)."""
+    a, b = _principal_axes(first), _principal_axes(second)
+    out = []
+    for s1, s2 in product((1.0, -1.0), repeat=2):
+        s = np.diag([s1, s2, s1 * s2 * np.linalg.det(a) * np.linalg.det(b)])
+        out.append(b @ s @ a.T)
+    return np.array(out)
+
+
+def resample(surface: GridSurface, m: int, n: int) -> GridSurface:
+    """The surface on a uniform m x n grid (bicubic interpolation)."""
+    r, t = np.linspace(0, 1, m), np.linspace(0, 1, n)
+    u, v = np.meshgrid(r, t, indexing="ij")
+    return GridSurface(GridInterpolator(surface.points, surface.r, surface.t)(u, v)[0], r, t)
+
+
+@dataclass(frozen=True)
+class Start:
+    """A ranked starting point: symmetry index, rotation and the coarse DP energy."""
+
+    symmetry: int
+    rotation: np.ndarray
+    energy: float
+
+
+def best_start(
+    first: GridSurface,
+    second: GridSurface,
+    *,
+    symmetries: bool = True,
+    grid: int = DEFAULT_SEARCH_GRID,
+    window: int = DEFAULT_SEARCH_WINDOW,
+) -> list[Start]:
+    """Rank (symmetry, rotation) starts by DP-surface-min on coarse grids; best first.
+
+    Parameters
+    ----------
+    first, second : GridSurface
+    symmetries : bool
+        Try the 8 symmetries of the square (else only the identity).
+    grid : int
+        Both surfaces are resampled on grid x grid nodes for the ranking. Default 21.
+    window : int
+        DP window for the ranking. Default 6.
+
+    Returns
+    -------
+    list of Start
+        One per symmetry (its best rotation), sorted by energy.
+    """
+    coarse1 = resample(first.scaled(), grid, grid)
+    coarse2 = resample(second.scaled(), grid, grid)
+    rotations = np.concatenate([cube_rotations(), principal_rotations(coarse1, coarse2)])
+    starts = []
+    for k in range(len(SQUARE_SYMMETRIES) if symmetries else 1):
+        ob = Objective(coarse1, apply_symmetry(coarse2, k))
+        q2 = ob.second_on_first_grid()
+        candidates = [kabsch(ob.best_rotation_covariance(ob.identity)), *rotations]
+        best = None
+        for rotation in candidates:
+            result = dp_surface_min(ob.q1, q2, ob.r, ob.r, ob.t, window=window, rotation=rotation, max_rounds=3)
+            if best is None or result.energy < best.energy:
+                best = Start(k, result.rotation, result.energy)
+        starts.append(best)
+    return sorted(starts, key=lambda s: s.energy)

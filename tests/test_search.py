@@ -1,0 +1,51 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import meshreg
+from meshreg.objective import Objective
+from meshreg.rotation import angle_between
+from meshreg.samples import bump, sample, warp
+from meshreg.search import SQUARE_SYMMETRIES, apply_symmetry, cube_rotations, principal_rotations, symmetry_map
+from meshreg.spline import GridInterpolator
+
+
+def test_cube_group():
+    rots = cube_rotations()
+    assert len(rots) == 24 and len({r.tobytes() for r in rots}) == 24
+    assert np.allclose(np.linalg.det(rots), 1.0)
+
+
+def test_symmetry_copy_matches_the_map():
+    s = sample(bump(), 21, 17, warp(0.05))
+    uv = np.random.default_rng(0).random((30, 2))
+    original = GridInterpolator(s.points, s.r, s.t)
+    for k in range(len(SQUARE_SYMMETRIES)):
+        copy = apply_symmetry(s, k)
+        mapped = symmetry_map(k, uv)
+        assert np.allclose(GridInterpolator(copy.points, copy.r, copy.t)(uv[:, 0], uv[:, 1])[0],
+                           original(mapped[:, 0], mapped[:, 1])[0], atol=1e-12)
+
+
+def test_principal_rotations_are_proper_and_align_axes():
+    c = bump()
+    rot = Rotation.from_euler("zyx", [40, 10, -70], degrees=True).as_matrix()
+    a, b = sample(c, 21, 21), sample(lambda r, t: c(r, t) @ rot.T, 21, 21)
+    cands = principal_rotations(a, b)
+    assert np.allclose(np.linalg.det(cands), 1.0)
+    assert min(angle_between(r, rot) for r in cands) < 1.0
+
+
+@pytest.mark.parametrize("seed, k", [(11, 0), (12, 3), (13, 6), (14, 1)])
+def test_any_rotation_and_corner_choice_is_recovered(seed, k):
+    """Random rotations and any of the 8 symmetries of the square, with a non-separable warp."""
+    c = bump()
+    rot = Rotation.random(random_state=seed).as_matrix()
+    first = sample(c, 41, 41)
+    second = apply_symmetry(sample(lambda r, t: c(r, t) @ rot.T, 43, 39, warp(0.1)), k)
+    result = meshreg.register(first, second)
+    assert result.energy < 1e-4
+    assert angle_between(result.rotation, rot) < 1.0
+    assert Objective(first, second).energy(result.rotation, result.h) == pytest.approx(result.energy, rel=1e-9)
+    # h' = sigma^-1 o h is an orientation-preserving reparametrization of the square
+    assert np.all(result.h >= 0) and np.all(result.h <= 1)
