@@ -176,6 +176,17 @@ class DPResult:
     history: tuple
 
 
+def _coarsen(q: np.ndarray, r: np.ndarray, t: np.ndarray, factor: int):
+    """Merge cells ``factor`` at a time along r by adding their vector areas; returns (q, r, node indices)."""
+    idx = np.unique(np.r_[np.arange(0, len(r), factor), len(r) - 1])
+    area = np.outer(np.diff(r), np.diff(t))[..., None]
+    n = q * np.linalg.norm(q, axis=-1, keepdims=True) * area  # vector area per cell
+    merged = np.add.reduceat(n, idx[:-1], axis=0)
+    v = merged / np.outer(np.diff(r[idx]), np.diff(t))[..., None]
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.sqrt(np.maximum(norm, 1e-300)), r[idx], idx
+
+
 def strip_bounds(na: int, nb: int, path: np.ndarray | None, radius: int) -> tuple[np.ndarray, np.ndarray]:
     """For each k the range [lo, hi] of l allowed in the DP table.
 
@@ -202,6 +213,7 @@ def dp_surface_min(
     max_rounds: int = DEFAULT_DP_ROUNDS,
     tol: float = DEFAULT_DP_TOL,
     strip: tuple[np.ndarray, np.ndarray] | None = None,
+    coarsen: int = 1,
 ) -> DPResult:
     """DP-surface-min: alternate DP over gamma with Kabsch-Umeyama over R.
 
@@ -227,6 +239,9 @@ def dp_surface_min(
         Stop when a round lowers E by less than ``tol``.
     strip : (lo, hi), optional
         Per-k bounds on l (see :func:`strip_bounds`).
+    coarsen : int
+        When > 1, first solve on cells merged ``coarsen`` at a time along r, then only within
+        ``2 * coarsen`` nodes of that path (coarse-to-fine: cost linear in A instead of A * B).
 
     Returns
     -------
@@ -234,6 +249,12 @@ def dp_surface_min(
     """
     if window < 1:
         raise ValueError("window must be at least 1")
+    if coarsen > 1 and strip is None:
+        (cq1, cr1, idx1), (cq2, cr2, idx2) = _coarsen(q1, r1, t, coarsen), _coarsen(q2, r2, t, coarsen)
+        coarse = dp_surface_min(cq1, cq2, cr1, cr2, t, window=window, rotation=rotation, max_rounds=max_rounds, tol=tol)
+        fine_path = np.stack([idx1[coarse.path[:, 0]], idx2[coarse.path[:, 1]]], axis=-1)
+        strip = strip_bounds(len(r1), len(r2), fine_path, 2 * coarsen)
+        rotation = coarse.rotation
     dt = np.diff(t)
     c = column_covariances(q1, q2, dt)
     norms = float(np.sum(np.diff(r1)[:, None] * dt * np.sum(q1**2, -1)))

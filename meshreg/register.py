@@ -29,30 +29,35 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from .descent import DescentParams, descend, gauss_newton
-from .diffeo import compose
+from .diffeo import compose, enforce_boundary
 from .dp import DEFAULT_DP_ROUNDS, DEFAULT_WINDOW, dp_surface_min
 from .fields import bspline_basis, node_basis, riseth_basis
 from .errors import InputError
 from .grid import GridSurface, read_grid
 from .objective import Objective
 from .rotation import kabsch
+from .spline import GridInterpolator
 from .search import apply_symmetry, best_start, symmetry_map
 
 MODES = ("auto", "dp", "gd", "dp+gd")
 DEFAULT_MODE = "auto"
 SOLVERS = ("gauss-newton", "gradient")
 REFINEMENTS = ("nodes", "none")
+# grids with more than twice this many nodes along the DP direction use the coarse-to-fine strip DP
+DP_STRIP_NODES = 50
 # a symmetry of the square other than the identity must beat it by this fraction (coarse DP energy)
 SYMMETRY_MARGIN = 0.05
 # coarse-to-fine refinement: cubic B-spline fields on 12 and 24 knots per axis, then every node
 REFINE_KNOTS = (12, 24)
+# the descent and the B-spline refinement run on at most this many nodes per axis
+COARSE_NODES = 101
 DEFAULT_ROUNDS = 10
 DEFAULT_ROUND_TOL = 1e-4
 
@@ -261,18 +266,33 @@ def register(
         timings["dp"] = time.perf_counter() - tic
     if mode != "dp":
         tic = time.perf_counter()
-        track = lambda stage: lambda i, e: (history.append(e), notify(stage, i, e))  # noqa: E731
+        # descent on a grid of at most COARSE_NODES nodes per axis, then node refinement on the full grid
+        work, (ir, it) = _coarse_objective(objective, first, second, second_area)
+        work_history = history if work is objective else []
+        track = lambda stage, hist: lambda i, e: (hist.append(e), notify(stage, i, e))  # noqa: E731
         step = descend if solver == "gradient" else gauss_newton
-        basis = riseth_basis(descent.basis, objective.r, objective.t)
+        basis = riseth_basis(descent.basis, work.r, work.t)
         stage = lambda o, R, hh, p, cb: step(o, R, hh, p, basis, cb)  # noqa: E731
-        rotation, h = _alternate(objective, rotation, h, stage, descent, max_rounds, round_tol, history, track("gd"), notify)
+        h = h[np.ix_(ir, it)]
+        rotation, h = _alternate(work, rotation, h, stage, descent, max_rounds, round_tol, work_history, track("gd", work_history), notify)
         timings["gd"] = time.perf_counter() - tic
         if refine == "nodes":
             tic = time.perf_counter()
-            for fields, additive in _refinement_bases(objective):
+            levels = [(bspline_basis(k, work.r, work.t), False, work) for k in REFINE_KNOTS if k < min(work.first.shape) // 2]
+            levels.append((None, True, objective))
+            for fields, additive, target in levels:
+                if target is not work and work is not objective:
+                    h = _upsample(h, work, objective)
+                    history.append(objective.energy(rotation, h))
+                fields = fields or node_basis(target.r, target.t)
+                hist = history if target is objective else work_history
                 stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
-                rotation, h = _alternate(objective, rotation, h, stage, descent, max_rounds, round_tol, history, track("refine"), notify)
+                params = descent if target is work else replace(descent, max_iterations=descent.fine_iterations)
+                rotation, h = _alternate(target, rotation, h, stage, params, max_rounds, round_tol, hist, track("refine", hist), notify)
             timings["refine"] = time.perf_counter() - tic
+        elif work is not objective:
+            h = _upsample(h, work, objective)
+            history.append(objective.energy(rotation, h))
     energy = objective.energy(rotation, h)
     h = symmetry_map(symmetry, h)
     if not history:
@@ -307,13 +327,21 @@ def register(
     )
 
 
-def _refinement_bases(objective: Objective):
-    """(basis, additive) of each refinement level: B-splines coarse to fine (composed), then nodes."""
+def _coarse_objective(objective: Objective, first: GridSurface, second: GridSurface, second_area: float):
+    """The objective on every f-th node of the first grid (at most COARSE_NODES per axis) and the node indices."""
     m, n = objective.first.shape
-    for knots in REFINE_KNOTS:
-        if knots < min(m, n) // 2:
-            yield bspline_basis(knots, objective.r, objective.t), False
-    yield node_basis(objective.r, objective.t), True
+    ir = np.unique(np.r_[np.arange(0, m, -(-(m - 1) // (COARSE_NODES - 1))), m - 1])
+    it = np.unique(np.r_[np.arange(0, n, -(-(n - 1) // (COARSE_NODES - 1))), n - 1])
+    if len(ir) == m and len(it) == n:
+        return objective, (ir, it)
+    coarse = GridSurface(first.points[np.ix_(ir, it)], first.r[ir], first.t[it])
+    return Objective(coarse, second, second_area), (ir, it)
+
+
+def _upsample(h: np.ndarray, coarse: Objective, fine: Objective) -> np.ndarray:
+    """h from the coarse grid's nodes to the fine grid's (bicubic), sides kept exact."""
+    value = GridInterpolator(h, coarse.r, coarse.t)(fine.identity[..., 0], fine.identity[..., 1])[0]
+    return enforce_boundary(value)
 
 
 def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: bool):
@@ -322,7 +350,8 @@ def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: boo
     r, t = objective.r, objective.t
     if along_t:
         q1, q2, r, t = q1.transpose(1, 0, 2), q2.transpose(1, 0, 2), t, r
-    result = dp_surface_min(q1, q2, r, r, t, window=window, max_rounds=dp_rounds, rotation=rotation)
+    coarsen = len(r) // DP_STRIP_NODES if len(r) > 2 * DP_STRIP_NODES else 1
+    result = dp_surface_min(q1, q2, r, r, t, window=window, max_rounds=dp_rounds, rotation=rotation, coarsen=coarsen)
     step = objective.identity.copy()
     if along_t:
         step[..., 1] = result.gamma[None, :]
