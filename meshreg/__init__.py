@@ -10,7 +10,7 @@
 
 from .errors import InputError
 from .grid import GridSurface, read_grid
-from .register import MODES, Registration, register
+from .register import MODES, Registration, register, register_symmetric
 
-__all__ = ["GridSurface", "InputError", "MODES", "Registration", "read_grid", "register"]
+__all__ = ["GridSurface", "InputError", "MODES", "Registration", "read_grid", "register", "register_symmetric"]
 __version__ = "0.1.0"

@@ -16,6 +16,7 @@ import numpy as np
 from .errors import InputError
 
 RESULT_FILE = "result.npz"
+REVERSE_FILE = "result_reverse.npz"
 FIGURE_FILE = "registration.png"
 
 
@@ -33,7 +34,7 @@ def _output_dir(path: str, inputs: list[Path]) -> Path:
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} exists and is not a directory: give another -o")
     resolved = {p.resolve() for p in inputs}
-    for name in (RESULT_FILE, FIGURE_FILE):
+    for name in (RESULT_FILE, REVERSE_FILE, FIGURE_FILE):
         if (out / name).resolve() in resolved:
             raise InputError(f"{out / name} is an input file: choose another output directory")
     out.mkdir(parents=True, exist_ok=True)
@@ -90,6 +91,13 @@ def cmd_register(args) -> int:
     out = _output_dir(args.output, [Path(args.first), Path(args.second)])
     result = _run_and_write(first, second, out, args.mode, _register_params(args), args.quiet)
     print(_summary(result, out))
+    if args.symmetric:
+        from .register import register
+
+        reverse = register(second, first, mode=args.mode, **_register_params(args))
+        reverse.save(out / REVERSE_FILE)
+        print(f"reverse E      {reverse.energy:.6g}   (second rotated, first reparametrized; {out / REVERSE_FILE})")
+        print(f"mean E         {0.5 * (result.energy + reverse.energy):.6g}")
     return 0
 
 
@@ -131,6 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument("--refine", choices=REFINEMENTS, default="nodes", help="node-wise refinement (default nodes)")
     reg.add_argument("--max-rounds", type=int, default=None, help="most descent + Kabsch rounds per stage")
     reg.add_argument("--grid", type=int, nargs=2, metavar=("M", "N"), help="grid size of text files without header")
+    reg.add_argument("--symmetric", action="store_true", help="also register SECOND onto FIRST and report both energies")
     reg.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     reg.set_defaults(func=cmd_register)
 

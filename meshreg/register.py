@@ -398,3 +398,17 @@ def _alternate(objective, rotation, h, stage, params, max_rounds, round_tol, his
         if energy <= params.zero_energy or state.energy - energy < round_tol * state.energy + params.abs_tol:
             break
     return rotation, h
+
+
+def register_symmetric(first, second, mode: str = DEFAULT_MODE, **params) -> tuple[Registration, Registration]:
+    """Register both ways: (first rotated, second reparametrized) and (second rotated, first reparametrized).
+
+    E is not symmetric in its arguments once discretized and minimized locally; the two energies
+    show how far from symmetric it is for a pair. Parameters as for :func:`register`.
+
+    Returns
+    -------
+    forward, backward : Registration
+    """
+    first, second = as_surface(first), as_surface(second)
+    return register(first, second, mode, **params), register(second, first, mode, **params)

@@ -75,3 +75,13 @@ def test_output_never_overwrites_an_input(tmp_path, capsys):
     assert main(["register", str(tmp_path / "result.npz"), str(tmp_path / "b.npy"), "-o", str(tmp_path), "-q"]) == 2
     assert "is an input file" in capsys.readouterr().err
     assert (tmp_path / "result.npz").read_bytes() == before
+
+
+def test_symmetric_reports_both_directions(grid_files, tmp_path, capsys):
+    code = main(["register", str(grid_files / "first.npy"), str(grid_files / "second.npy"), "-o", str(tmp_path), "--symmetric", "-q"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "reverse E" in out and "mean E" in out
+    forward, backward = Registration.load(tmp_path / "result.npz"), Registration.load(tmp_path / "result_reverse.npz")
+    assert forward.energy < 1e-6 and backward.energy < 1e-6
+    assert np.allclose(backward.rotation, forward.rotation.T, atol=1e-3)
