@@ -126,6 +126,17 @@ class DescentState:
     iterations: int = 0
 
 
+def _accept(state: DescentState, h, rotation, energy: float, params: DescentParams, callback) -> bool:
+    """Record an accepted step; True when the decrease was too small to go on."""
+    previous = state.energy
+    state.h, state.rotation, state.energy = h, rotation, energy
+    state.history.append(energy)
+    state.iterations += 1
+    if callback is not None:
+        callback(state.iterations, energy)
+    return previous - energy < params.rel_tol * previous + params.abs_tol
+
+
 def descend(
     objective: Objective,
     rotation: np.ndarray,
@@ -181,15 +192,7 @@ def descend(
                     accepted = (candidate, e)
                     break
             delta *= 0.5
-        if accepted is None:
-            break
-        previous = state.energy
-        state.h, state.energy = accepted
-        state.history.append(state.energy)
-        state.iterations += 1
-        if callback is not None:
-            callback(state.iterations, state.energy)
-        if previous - state.energy < params.rel_tol * previous + params.abs_tol:
+        if accepted is None or _accept(state, accepted[0], rotation, accepted[1], params, callback):
             break
     return state
 
@@ -258,17 +261,9 @@ def gauss_newton(
                     accepted = (candidate, new_rotation, e)
                     break
             lam = max(lam, 1e-6) * 4.0
-        if accepted is None:
+        if accepted is None or _accept(state, *accepted, params, callback):
             break
         lam = max(lam / 3.0, 1e-9)
-        previous = state.energy
-        state.h, state.rotation, state.energy = accepted
-        state.history.append(state.energy)
-        state.iterations += 1
-        if callback is not None:
-            callback(state.iterations, state.energy)
-        if previous - state.energy < params.rel_tol * previous + params.abs_tol:
-            break
     return state
 
 

@@ -50,7 +50,9 @@ MODES = ("auto", "dp", "gd", "dp+gd")
 DEFAULT_MODE = "auto"
 SOLVERS = ("gauss-newton", "gradient")
 REFINEMENTS = ("nodes", "none")
-# grids with more than twice this many nodes along the DP direction use the coarse-to-fine strip DP
+# grids with more than DP_FULL_NODES nodes along the DP direction use the coarse-to-fine strip DP, its
+# coarse level having about DP_STRIP_NODES nodes
+DP_FULL_NODES = 200
 DP_STRIP_NODES = 50
 # a symmetry of the square other than the identity must beat it by this fraction (coarse DP energy)
 SYMMETRY_MARGIN = 0.05
@@ -350,7 +352,7 @@ def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: boo
     r, t = objective.r, objective.t
     if along_t:
         q1, q2, r, t = q1.transpose(1, 0, 2), q2.transpose(1, 0, 2), t, r
-    coarsen = len(r) // DP_STRIP_NODES if len(r) > 2 * DP_STRIP_NODES else 1
+    coarsen = len(r) // DP_STRIP_NODES if len(r) > DP_FULL_NODES else 1
     result = dp_surface_min(q1, q2, r, r, t, window=window, max_rounds=dp_rounds, rotation=rotation, coarsen=coarsen)
     step = objective.identity.copy()
     if along_t:

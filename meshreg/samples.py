@@ -60,6 +60,27 @@ def bump() -> Param:
     )
 
 
+def saddle() -> Param:
+    """A saddle z = (r - 1/2)(t - 1/3) with a cubic term (no symmetry of the square maps it to itself)."""
+    return lambda r, t: np.stack([r, t, 1.5 * (r - 0.5) * (t - 0.33) + 0.4 * r**3], axis=-1)
+
+
+def wave() -> Param:
+    """A travelling wave z = 0.15 sin(2 pi (1.3 r + 0.7 t)) on a slightly sheared base."""
+    return lambda r, t: np.stack([r + 0.2 * t, t, 0.15 * np.sin(2 * np.pi * (1.3 * r + 0.7 * t))], axis=-1)
+
+
+def terrain(seed: int = 0, modes: int = 6) -> Param:
+    """A smooth random terrain: a sum of ``modes`` random Fourier modes with decaying amplitudes."""
+    rng = np.random.default_rng(seed)
+    freq = rng.uniform(0.5, 3.0, size=(modes, 2))
+    phase = rng.uniform(0, 2 * np.pi, size=modes)
+    amp = 0.25 / (1 + np.arange(modes))
+    return lambda r, t: np.stack(
+        [r, t, sum(a * np.sin(2 * np.pi * (f[0] * r + f[1] * t) + p) for a, f, p in zip(amp, freq, phase))], axis=-1
+    )
+
+
 def warp(a: float = 0.08) -> Callable:
     """A non-separable smooth diffeomorphism of the square that keeps each side on itself (|a| < 0.2).
 

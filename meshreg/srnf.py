@@ -75,6 +75,16 @@ def cross_covariance(q1: np.ndarray, q2: np.ndarray, weights: np.ndarray) -> np.
     return np.einsum("ij,ija,ijb->ab", weights, q1, q2)
 
 
+def _cells(points: np.ndarray, weights: np.ndarray):
+    """Per cell: diagonals d1, d2, weight w (..., 1), v = n / w, |v| (clamped away from 0) and q."""
+    d1 = points[1:, 1:] - points[:-1, :-1]
+    d2 = points[:-1, 1:] - points[1:, :-1]
+    w = weights[..., None]
+    v = 0.5 * np.cross(d1, d2) / w
+    norm = np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), _TINY)
+    return d1, d2, w, v, norm, v / np.sqrt(norm)
+
+
 def energy_gradient_points(target: np.ndarray, points: np.ndarray, weights: np.ndarray) -> tuple[float, np.ndarray]:
     """E(points) = sum w |target - q(points)|^2 and its gradient with respect to the points.
 
@@ -92,12 +102,7 @@ def energy_gradient_points(target: np.ndarray, points: np.ndarray, weights: np.n
     E : float
     dE_dpoints : ndarray, shape (M, N, 3)
     """
-    d1 = points[1:, 1:] - points[:-1, :-1]
-    d2 = points[:-1, 1:] - points[1:, :-1]
-    w = weights[..., None]
-    v = 0.5 * np.cross(d1, d2) / w
-    norm = np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), _TINY)
-    q = v / np.sqrt(norm)
+    d1, d2, w, v, norm, q = _cells(points, weights)
     diff = target - q
     e = float(np.sum(w * diff * diff))
     g_q = -2.0 * w * diff
@@ -137,12 +142,7 @@ def shape_function_jacobians(points: np.ndarray, weights: np.ndarray) -> tuple[n
     jac : ndarray, shape (4, M-1, N-1, 3, 3)
         ``jac[c]`` maps a displacement of corner c (order c00, c10, c01, c11) to the change of q.
     """
-    d1 = points[1:, 1:] - points[:-1, :-1]
-    d2 = points[:-1, 1:] - points[1:, :-1]
-    w = weights[..., None]
-    v = 0.5 * np.cross(d1, d2) / w
-    norm = np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), _TINY)
-    q = v / np.sqrt(norm)
+    d1, d2, w, v, norm, q = _cells(points, weights)
     vhat = v / norm
     dq_dn = (np.eye(3) - 0.5 * vhat[..., :, None] * vhat[..., None, :]) / (np.sqrt(norm) * w)[..., None]
     s1 = 0.5 * dq_dn @ _skew(d1)

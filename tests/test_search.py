@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 import meshreg
 from meshreg.objective import Objective
 from meshreg.rotation import angle_between
-from meshreg.samples import bump, sample, warp
+from meshreg.samples import bump, sample, saddle, terrain, warp, wave
 from meshreg.search import SQUARE_SYMMETRIES, apply_symmetry, cube_rotations, principal_rotations, symmetry_map
 from meshreg.spline import GridInterpolator
 
@@ -49,3 +49,14 @@ def test_any_rotation_and_corner_choice_is_recovered(seed, k):
     assert Objective(first, second).energy(result.rotation, result.h) == pytest.approx(result.energy, rel=1e-9)
     # h' = sigma^-1 o h is an orientation-preserving reparametrization of the square
     assert np.all(result.h >= 0) and np.all(result.h <= 1)
+
+
+@pytest.mark.parametrize("make, seed", [(saddle, 21), (wave, 22), (lambda: terrain(3), 23)])
+def test_other_surfaces_with_general_rotations(make, seed):
+    c = make()
+    rot = Rotation.random(random_state=seed).as_matrix()
+    first = sample(c, 41, 41)
+    second = sample(lambda r, t: 0.7 * c(r, t) @ rot.T - 4.0, 41, 41, warp(-0.07))
+    result = meshreg.register(first, second)
+    assert result.energy < 1e-3
+    assert angle_between(result.rotation, rot) < 1.0
