@@ -97,6 +97,8 @@ class DescentParams:
         Initial Levenberg-Marquardt damping of :func:`gauss_newton`. Default 1e-3.
     cg_iterations : int
         Most conjugate-gradient iterations for a Gauss-Newton step in a local basis. Default 100.
+    refine_iterations : int
+        Most iterations per round of each refinement level (B-spline and node bases). Default 10.
     fine_iterations : int
         On grids larger than the coarse-to-fine limit (101 nodes per axis), most node-refinement
         iterations on the full grid after the descent on the coarse one. Default 5.
@@ -112,6 +114,7 @@ class DescentParams:
     max_backtracks: int = 30
     damping: float = 1e-3
     cg_iterations: int = 100
+    refine_iterations: int = 10
     fine_iterations: int = 5
 
 

@@ -289,7 +289,8 @@ def register(
                 fields = fields or node_basis(target.r, target.t)
                 hist = history if target is objective else work_history
                 stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
-                params = descent if target is work else replace(descent, max_iterations=descent.fine_iterations)
+                cap = descent.refine_iterations if target is work else descent.fine_iterations
+                params = replace(descent, max_iterations=min(descent.max_iterations, cap))
                 rotation, h = _alternate(target, rotation, h, stage, params, max_rounds, round_tol, hist, track("refine", hist), notify)
             timings["refine"] = time.perf_counter() - tic
         elif work is not objective:
