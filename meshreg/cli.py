@@ -34,7 +34,7 @@ def _output_dir(path: str, inputs: list[Path]) -> Path:
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} exists and is not a directory: give another -o")
     resolved = {p.resolve() for p in inputs}
-    for name in (RESULT_FILE, REVERSE_FILE, FIGURE_FILE):
+    for name in (RESULT_FILE, REVERSE_FILE, FIGURE_FILE, "first.ply", "second.ply", "registered.ply", "meshes.png"):
         if (out / name).resolve() in resolved:
             raise InputError(f"{out / name} is an input file: choose another output directory")
     out.mkdir(parents=True, exist_ok=True)
@@ -82,9 +82,55 @@ def _register_params(args) -> dict:
     return params
 
 
+def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bool):
+    """Mesh pipeline: register (vertices, faces) pairs and write coloured meshes, result and figures."""
+    from tqdm import tqdm
+
+    from .mesh.correspond import register_meshes
+    from .mesh.export import input_colors, plot_meshes, registered_mesh, write_ply
+    from .objective import Objective
+    from .viz import plot_registration
+
+    with tqdm(desc="registering", unit=" steps", disable=quiet, leave=False) as bar:
+        mr = register_meshes(first, second, callback=_progress_callback(bar), **params)
+    (v1, f1), (v2, f2) = first, second
+    c1 = input_colors(len(v1), mr.first.vertex_map, mr.colors1)
+    c2 = input_colors(len(v2), mr.second.vertex_map, mr.colors2)
+    write_ply(out / "first.ply", v1, f1, c1)
+    write_ply(out / "second.ply", v2, f2, c2)
+    reg_v, reg_f, reg_c = registered_mesh(mr)
+    write_ply(out / "registered.ply", reg_v, reg_f, reg_c)
+    uv1 = np.full((len(v1), 2), np.nan)
+    uv1[mr.first.vertex_map] = mr.uv1
+    uv2 = np.full((len(v2), 2), np.nan)
+    uv2[mr.second.vertex_map] = mr.uv2
+    mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)
+    plot_meshes(out / "meshes.png", v1, f1, c1, v2, f2, c2, title=f"E = {mr.result.energy:.3g}: corresponding points share a colour")
+    objective = Objective(*mr.grids)
+    plot_registration(mr.result.apply(objective.first.points), objective.points(mr.result.h), mr.result.energy_history,
+                      out / FIGURE_FILE, title=f"E = {mr.result.energy:.3g}")
+    for name, info in mr.info.items():
+        for line in info["cleanup"]:
+            print(f"{name} mesh cleanup: {line}")
+        if info["flipped"]:
+            print(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
+    return mr.result
+
+
 def cmd_register(args) -> int:
     from .grid import read_grid
+    from .mesh.topology import MESH_SUFFIXES, load_mesh
 
+    is_mesh = [Path(p).suffix.lower() in MESH_SUFFIXES for p in (args.first, args.second)]
+    if any(is_mesh):
+        if not all(is_mesh):
+            raise InputError("give two meshes or two grid files, not one of each")
+        first, second = load_mesh(args.first), load_mesh(args.second)
+        out = _output_dir(args.output, [Path(args.first), Path(args.second)])
+        result = _register_meshes_and_write(first, second, out, _register_params(args), args.quiet)
+        print(_summary(result, out))
+        print(f"               {out / 'first.ply'}, {out / 'second.ply'}, {out / 'registered.ply'}, {out / 'meshes.png'}")
+        return 0
     shape = tuple(args.grid) if args.grid else None
     first = read_grid(args.first, shape)
     second = read_grid(args.second, shape)
@@ -102,13 +148,20 @@ def cmd_register(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .samples import paper_pairs
+    from .mesh.export import write_ply
+    from .mesh.samples import demo_pair
 
-    pair = {p.name: p for p in paper_pairs()}["helicoid4 g2"]
     out = _output_dir(args.output, [])
-    print(f"demo: {pair.name} (helicoid k=4 against a rotated copy sampled at (r^5/4, t^5/4)), mode auto")
-    result = _run_and_write(pair.first, pair.second, out, "auto", {}, args.quiet)
+    (v1, f1, _), (v2, f2, _) = demo_pair()
+    inputs = out / "inputs"
+    inputs.mkdir(exist_ok=True)
+    write_ply(inputs / "terrain_a.ply", v1, f1, np.full((len(v1), 3), 0.8))
+    write_ply(inputs / "terrain_b.ply", v2, f2, np.full((len(v2), 3), 0.8))
+    print("demo: a terrain patch (matplotlib's Jacksboro DEM) meshed twice (2500 and 4000 random vertices),")
+    print(f"      the second rotated, scaled and shifted; inputs in {inputs}; mode auto")
+    result = _register_meshes_and_write((v1, f1), (v2, f2), out, {}, args.quiet)
     print(_summary(result, out))
+    print(f"               {out / 'first.ply'}, {out / 'second.ply'}, {out / 'registered.ply'}, {out / 'meshes.png'}")
     return 0
 
 
@@ -129,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     reg = sub.add_parser("register", help="register two grid surfaces")
-    reg.add_argument("first", help="first surface (rotated): .npy, .npz or text grid")
+    reg.add_argument("first", help="first surface (rotated): a mesh (.ply .obj .stl .off .glb) or a grid (.npy .npz text)")
     reg.add_argument("second", help="second surface (reparametrized)")
     reg.add_argument("-o", "--output", required=True, help="output directory (result.npz, registration.png)")
     reg.add_argument("--mode", choices=MODES, default=DEFAULT_MODE, help=f"default {DEFAULT_MODE}")
@@ -143,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     reg.set_defaults(func=cmd_register)
 
-    demo = sub.add_parser("demo", help="register a sample pair and write the result and a figure")
+    demo = sub.add_parser("demo", help="register two sample terrain meshes and write coloured meshes, result and figures")
     demo.add_argument("-o", "--output", default="meshreg-demo", help="output directory (default meshreg-demo)")
     demo.add_argument("-q", "--quiet", action="store_true")
     demo.set_defaults(func=cmd_demo)

@@ -118,10 +118,11 @@ class Registration:
         """Rotate points (..., 3) of the first surface by R."""
         return np.asarray(points) @ self.rotation.T
 
-    def save(self, path) -> None:
-        """Write the result to ``path`` (``.npz``; keys as in architecture.md)."""
+    def save(self, path, **extra) -> None:
+        """Write the result to ``path`` (``.npz``; keys as in architecture.md), plus ``extra`` arrays."""
         np.savez(
             path,
+            **extra,
             R=self.rotation,
             h=self.h,
             energy=self.energy,

@@ -1,0 +1,68 @@
+"""Writing the mesh results: coloured PLY meshes, the registered grid as a mesh, and a side-by-side figure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .correspond import MeshRegistration, uv_colors
+
+UNMATCHED = np.array([0.6, 0.6, 0.6])  # colour of input vertices dropped by the cleanup
+
+
+def grid_faces(m: int, n: int) -> np.ndarray:
+    """Two triangles per cell of an m x n grid of nodes numbered i * n + j, shape (2 (m-1)(n-1), 3)."""
+    idx = np.arange(m * n).reshape(m, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def write_ply(path, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray) -> None:
+    """A PLY mesh with per-vertex RGB colours (colours in [0, 1])."""
+    import trimesh
+
+    rgba = np.hstack([np.clip(colors, 0, 1) * 255, np.full((len(colors), 1), 255)]).astype(np.uint8)
+    trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False).export(Path(path))
+
+
+def input_colors(n_input: int, vertex_map: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """Colours for every input vertex: the computed ones, grey where cleanup dropped the vertex."""
+    out = np.tile(UNMATCHED, (n_input, 1))
+    out[vertex_map] = colors
+    return out
+
+
+def registered_mesh(mr: MeshRegistration):
+    """The second surface sampled at h on the first's grid, brought into the first's frame (R^T, scale, centroid).
+
+    Returns vertices (M N, 3), faces and colours (those of the first's grid nodes).
+    """
+    from ..objective import Objective
+
+    res = mr.result
+    g1, g2 = mr.grids
+    pts = Objective(g1, g2).points(res.h) @ res.rotation * np.sqrt(g1.area())
+    pts = pts + (g1.points.reshape(-1, 3).mean(0) - pts.reshape(-1, 3).mean(0))
+    uv = np.stack(np.meshgrid(res.r, res.t, indexing="ij"), -1).reshape(-1, 2)
+    return pts.reshape(-1, 3), grid_faces(len(res.r), len(res.t)), uv_colors(uv)
+
+
+def plot_meshes(path, v1, f1, c1, v2, f2, c2, title: str = "") -> None:
+    """PNG: the two meshes side by side, coloured by correspondence."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(11, 5))
+    for k, (v, f, c, name) in enumerate(((v1, f1, c1, "first"), (v2, f2, c2, "second"))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=f, color="w", linewidth=0, shade=False).set_facecolor(c[f].mean(1))
+        ax.set_title(f"{name} mesh ({len(v)} vertices)")
+        ax.set_box_aspect(np.ptp(v, axis=0) + 1e-9)
+        ax.set_axis_off()
+    fig.suptitle(title or "corresponding points share a colour")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

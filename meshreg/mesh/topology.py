@@ -1,0 +1,162 @@
+"""Loading meshes and checking/cleaning them into disks (one component, one boundary loop, manifold)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ..errors import InputError
+
+MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
+
+
+def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (n, 3) and faces (m, 3) of a mesh file, vertex order kept (trimesh, ``process=False``).
+
+    STL files, which repeat each triangle's corners, have coincident vertices welded.
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except Exception as err:  # trimesh raises many types on bad files
+        raise InputError(f"{path}: cannot read mesh ({err})") from None
+    if path.suffix.lower() == ".stl" and len(getattr(mesh, "faces", [])):
+        mesh.merge_vertices()  # STL stores every triangle's corners separately: weld them
+    vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=float)
+    faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
+    if len(vertices) == 0 or len(faces) == 0:
+        raise InputError(f"{path}: the mesh is empty (no triangles)")
+    return vertices, faces
+
+
+@dataclass
+class DiskMesh:
+    """A mesh with disk topology and its boundary loop.
+
+    Attributes
+    ----------
+    vertices : ndarray (n, 3)
+    faces : ndarray (m, 3)
+    boundary : ndarray (b,)
+        Vertex indices of the boundary loop, in the order that makes the faces' orientation positive.
+    vertex_map : ndarray (n,)
+        Index of each vertex in the mesh as given (cleanup may drop vertices).
+    report : list of str
+        What the cleanup did.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    boundary: np.ndarray
+    vertex_map: np.ndarray
+    report: list = field(default_factory=list)
+
+
+def _edges(faces):
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    uniq, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return e, uniq, inverse.ravel(), counts
+
+
+def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = True) -> DiskMesh:
+    """Check (and with ``cleanup``, repair what is safe) that a mesh is a topological disk.
+
+    Cleanup, always reported: drop degenerate (zero-area) triangles, keep the largest connected
+    component, drop triangles whose three corners are all on the boundary (they collapse under a
+    convex map), drop unreferenced vertices.
+
+    Raises
+    ------
+    InputError
+        NaN coordinates, non-manifold edges, a closed surface, several boundary loops.
+    """
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise InputError("a mesh needs vertices (n, 3) and triangular faces (m, 3)")
+    if not np.all(np.isfinite(v)):
+        raise InputError("the mesh has NaN or infinite vertex coordinates: remove or fix those vertices")
+    if f.min() < 0 or f.max() >= len(v):
+        raise InputError("faces refer to vertices that do not exist")
+    report = []
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    bad = (area <= 1e-14 * max(area.max(), 1e-300)) | (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    if bad.any():
+        if not cleanup:
+            raise InputError(f"the mesh has {int(bad.sum())} degenerate (zero-area) triangles: remove them or allow cleanup")
+        f = f[~bad]
+        report.append(f"removed {int(bad.sum())} degenerate triangles")
+    _, uniq, _, counts = _edges(f)
+    if np.any(counts > 2):
+        raise InputError(f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first")
+    # components over faces sharing vertices
+    n = len(v)
+    incidence = sp.csr_matrix((np.ones(f.size), (np.repeat(np.arange(len(f)), 3), f.ravel())), shape=(len(f), n))
+    ncomp, labels = connected_components(incidence @ incidence.T, directed=False)
+    if ncomp > 1:
+        if not cleanup:
+            raise InputError(f"the mesh has {ncomp} connected components: keep one or allow cleanup")
+        keep = labels == np.bincount(labels).argmax()
+        report.append(f"kept the largest of {ncomp} components ({int(keep.sum())} of {len(f)} triangles)")
+        f = f[keep]
+    for _ in range(10):
+        boundary_vertices = np.unique(_boundary_edges(f))
+        on_boundary = np.isin(f, boundary_vertices).all(axis=1)
+        if not (cleanup and on_boundary.any() and on_boundary.sum() < len(f)):
+            break
+        f = f[~on_boundary]
+        report.append(f"removed {int(on_boundary.sum())} triangles with all corners on the boundary")
+    used = np.unique(f)
+    if len(used) < n:
+        report.append(f"dropped {n - len(used)} unreferenced vertices")
+    remap = np.full(n, -1)
+    remap[used] = np.arange(len(used))
+    v, f = v[used], remap[f]
+    loops = _boundary_loops(f)
+    if not loops:
+        raise InputError("the surface is closed (no boundary): cut it open first (a disk is needed)")
+    if len(loops) > 1:
+        sizes = sorted((len(x) for x in loops), reverse=True)
+        raise InputError(f"the mesh has {len(loops)} boundary loops (sizes {sizes[:5]}): fill its holes so that one loop is left")
+    _, uniq, _, _ = _edges(f)
+    euler = len(v) - len(uniq) + len(f)
+    if euler != 1:
+        raise InputError(f"the mesh is not a disk (Euler characteristic {euler}, a disk has 1)")
+    return DiskMesh(v, f, np.array(loops[0]), used, report)
+
+
+def _boundary_edges(faces):
+    e, _, inverse, counts = _edges(faces)
+    return e[counts[inverse] == 1]
+
+
+def _boundary_loops(faces) -> list[list[int]]:
+    """Boundary loops following the faces' directed edges (so the interior lies to their left)."""
+    directed = _boundary_edges(faces)
+    nxt = {}
+    for a, b in directed:
+        if a in nxt:
+            raise InputError("the boundary touches itself at a vertex (non-manifold vertex): repair the mesh first")
+        nxt[int(a)] = int(b)
+    loops, seen = [], set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, cur = [], start
+        while cur not in seen:
+            seen.add(cur)
+            loop.append(cur)
+            cur = nxt.get(cur)
+            if cur is None:
+                raise InputError("the boundary is not a closed loop: the faces are not consistently oriented")
+        loops.append(loop)
+    return loops

@@ -1,0 +1,113 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from meshreg.errors import InputError
+from meshreg.mesh import load_mesh, parametrize, prepare_disk, resample_grid
+from meshreg.mesh.correspond import register_meshes, uv_colors
+from meshreg.mesh.samples import random_disk_mesh, terrain_function
+from meshreg.rotation import angle_between
+from meshreg.samples import bump
+from scipy.interpolate import LinearNDInterpolator
+
+
+def test_parametrization_is_bijective_and_sides_on_sides():
+    v, f, _ = random_disk_mesh(bump(), 800, seed=0)
+    disk = prepare_disk(v, f)
+    uv, info = parametrize(disk)
+    assert info["flipped"] == 0 and info["degenerate"] == 0
+    b = uv[disk.boundary]
+    on_side = np.isclose(b[:, 0], 0) | np.isclose(b[:, 0], 1) | np.isclose(b[:, 1], 0) | np.isclose(b[:, 1], 1)
+    assert on_side.all()
+    grid = resample_grid(disk.vertices, disk.faces, uv, 31, 31)
+    assert np.all(np.isfinite(grid.points))
+
+
+@pytest.mark.parametrize("surface", [bump(), terrain_function()])
+def test_remeshed_rotated_copy_gives_small_energy_and_matching_colours(surface):
+    rot = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
+    v1, f1, p1 = random_disk_mesh(surface, 1500, seed=3)
+    v2, f2, p2 = random_disk_mesh(surface, 2500, seed=4, rotation=rot, scale=3.0)
+    mr = register_meshes((v1, f1), (v2, f2), grid=61)
+    assert mr.result.energy <= 0.02
+    assert angle_between(mr.result.rotation, rot) < 2.0
+    # true correspondence: equal parameters p; colour the first mesh's uv at the second's points
+    truth_uv = LinearNDInterpolator(p1[mr.first.vertex_map], mr.uv1)(p2[mr.second.vertex_map])
+    ok = ~np.isnan(truth_uv[:, 0])
+    truth = uv_colors(truth_uv[ok])
+    err = np.median(np.linalg.norm(mr.colors2[ok] - truth, axis=1))
+    typical = np.median(np.linalg.norm(truth - truth[np.random.default_rng(0).permutation(len(truth))], axis=1))
+    assert err <= 0.1 * typical
+
+
+def _annulus():
+    a = trimesh.creation.annulus(r_min=0.5, r_max=1.0, height=0.1, sections=24)
+    keep = a.face_normals[:, 2] > 0.9  # the top ring only: a disk with a hole
+    return a.vertices, a.faces[keep]
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: (trimesh.creation.icosphere().vertices, trimesh.creation.icosphere().faces), "closed"),
+        (_annulus, "boundary loops"),
+        (lambda: (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0.0], [0.2, 0.2, -1]]),
+                  np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4], [0, 2, 5]])), "non-manifold"),
+        (lambda: (np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]])), "NaN"),
+    ],
+)
+def test_bad_meshes(make, message):
+    v, f = make()
+    with pytest.raises(InputError, match=message):
+        disk = prepare_disk(v, f)
+        parametrize(disk)
+
+
+def test_cleanup_is_reported():
+    v, f, _ = random_disk_mesh(bump(), 300, seed=5)
+    far = v + 100.0  # a second component
+    v2 = np.vstack([v, far, [[0, 0, 0]]])
+    f2 = np.vstack([f, f + len(v), [[0, 0, 1]]])  # plus a degenerate triangle
+    disk = prepare_disk(v2, f2)
+    assert any("components" in line for line in disk.report)
+    assert any("degenerate" in line for line in disk.report)
+    with pytest.raises(InputError, match="components|degenerate"):
+        prepare_disk(v2, f2, cleanup=False)
+
+
+def test_unreadable_and_empty_files(tmp_path):
+    (tmp_path / "junk.ply").write_bytes(b"ply\nthis is not a mesh\n")
+    with pytest.raises(InputError):
+        load_mesh(tmp_path / "junk.ply")
+    with pytest.raises(InputError, match="no such file"):
+        load_mesh(tmp_path / "missing.obj")
+
+
+def test_cli_meshes_end_to_end_and_errors(tmp_path):
+    v1, f1, _ = random_disk_mesh(bump(), 800, seed=6)
+    v2, f2, _ = random_disk_mesh(bump(), 1200, seed=7, rotation=Rotation.random(random_state=1).as_matrix())
+    trimesh.Trimesh(v1, f1, process=False).export(tmp_path / "a.ply")
+    trimesh.Trimesh(v2, f2, process=False).export(tmp_path / "b.obj")
+    before = (tmp_path / "a.ply").read_bytes()
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "register", str(tmp_path / "a.ply"), str(tmp_path / "b.obj"), "-o", str(out), "-q"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    for name in ("first.ply", "second.ply", "registered.ply", "result.npz", "meshes.png", "registration.png"):
+        assert (out / name).stat().st_size > 0
+    colored = trimesh.load(out / "second.ply", process=False)
+    assert len(colored.vertices) == len(v2) and np.allclose(colored.vertices, v2)
+    assert colored.visual.vertex_colors.shape[0] == len(v2)
+    with np.load(out / "result.npz") as data:
+        assert data["uv_first"].shape == (len(v1), 2) and float(data["energy"]) < 0.02
+    assert (tmp_path / "a.ply").read_bytes() == before
+    sphere = trimesh.creation.icosphere()
+    sphere.export(tmp_path / "sphere.stl")
+    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "register", str(tmp_path / "sphere.stl"), str(tmp_path / "b.obj"), "-o", str(tmp_path / "o2"), "-q"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "closed" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "o2" / "result.npz").exists()
