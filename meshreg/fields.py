@@ -40,6 +40,7 @@ class TensorBasis:
         self.a1, self.da1, self.b1, self.db1 = first
         self.a2, self.da2, self.b2, self.db2 = second
         self.sparse = sparse
+        self.selection = None  # set when every field moves one node value: the rows of matrix() it keeps
         self.shape1 = (self.a1.shape[1], self.b1.shape[1])
         self.shape2 = (self.a2.shape[1], self.b2.shape[1])
         self.size = self.shape1[0] * self.shape1[1] + self.shape2[0] * self.shape2[1]
@@ -149,6 +150,6 @@ def node_basis(r: np.ndarray, t: np.ndarray) -> TensorBasis:
     ir, it = np.eye(len(r)), np.eye(len(t))
     dr, dt = np.gradient(ir, r, axis=0), np.gradient(it, t, axis=0)
     inner_r, inner_t = slice(1, len(r) - 1), slice(1, len(t) - 1)
-    return TensorBasis(
-        (ir[:, inner_r], dr[:, inner_r], it, dt), (ir, dr, it[:, inner_t], dt[:, inner_t]), sparse=True
-    )
+    basis = TensorBasis((ir[:, inner_r], dr[:, inner_r], it, dt), (ir, dr, it[:, inner_t], dt[:, inner_t]), sparse=True)
+    basis.selection = basis.matrix().tocoo().row[np.argsort(basis.matrix().tocoo().col)]
+    return basis

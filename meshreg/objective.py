@@ -49,6 +49,7 @@ class Objective:
         self.q1 = shape_function(self.first.points, self.r, self.t)
         self.c2 = GridInterpolator(self.second.points, self.second.r, self.second.t)
         self.identity = identity(self.r, self.t)
+        self._pattern = None
 
     def points(self, h: np.ndarray) -> np.ndarray:
         """The second surface at h: c2(h(r_i, t_j)), shape (M, N, 3)."""
@@ -107,7 +108,8 @@ class Objective:
         Returns
         -------
         res : ndarray, shape (3 (M-1) (N-1),)
-        jac : scipy.sparse.csr_matrix, shape (3 (M-1) (N-1), 2 M N)
+        jac : CellJacobian
+            The (3 (M-1) (N-1), 2 M N) Jacobian, kept as per-cell blocks.
         """
         pts, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
         d_dr, d_dt = _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt)
@@ -116,21 +118,13 @@ class Objective:
         sw = np.sqrt(self.weights)[..., None]
         res = sw * (self.q1 @ rotation.T - q)
         m, n = h.shape[:2]
-        cells = np.arange((m - 1) * (n - 1)).reshape(m - 1, n - 1)
-        nodes = np.arange(m * n).reshape(m, n)
-        rows = (cells[..., None, None] * 3 + np.arange(3)[:, None]).repeat(2, axis=-1)
-        data, row_idx, col_idx = [], [], []
-        for c, (di, dj) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
-            corner = (slice(di, m - 1 + di), slice(dj, n - 1 + dj))
-            k = -sw[..., None] * (cell_jac[c] @ node_jac[corner])  # (M-1, N-1, 3, 2)
-            cols = nodes[corner][..., None, None] * 2 + np.arange(2)
-            data.append(k.ravel())
-            row_idx.append(rows.ravel())
-            col_idx.append(np.broadcast_to(cols, k.shape).ravel())
-        jac = sp.csr_matrix(
-            (np.concatenate(data), (np.concatenate(row_idx), np.concatenate(col_idx))), shape=(res.size, 2 * m * n)
-        )
-        return res.ravel(), jac
+        blocks = np.concatenate(
+            [-sw[..., None] * (cell_jac[c] @ node_jac[di : m - 1 + di, dj : n - 1 + dj]) for c, (di, dj) in enumerate(_CORNERS)],
+            axis=-1,
+        )  # (M-1, N-1, 3, 8): columns (corner, component)
+        if self._pattern is None or self._pattern.shape != (m, n):
+            self._pattern = _GramPattern(m, n)
+        return res.ravel(), CellJacobian(blocks.reshape(-1, 3, 8), self._pattern)
 
     def rotation_jacobian(self, rotation: np.ndarray) -> np.ndarray:
         """Derivatives of res = sqrt(w) (R q1 - (q2, h)) along R <- exp([omega]x) R: shape (3 (M-1)(N-1), 3)."""
@@ -148,3 +142,55 @@ def _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt):
     d_dr = dc_du * dh_dr[..., :1] + dc_dv * dh_dr[..., 1:]
     d_dt = dc_du * dh_dt[..., :1] + dc_dv * dh_dt[..., 1:]
     return d_dr, d_dt
+
+
+_CORNERS = ((0, 0), (1, 0), (0, 1), (1, 1))
+
+
+class _GramPattern:
+    """Index maps of an M x N grid: each cell's 8 node unknowns, and where each entry of the per-cell
+    8 x 8 products lands in the CSR data of J^T J (computed once per grid size)."""
+
+    def __init__(self, m: int, n: int):
+        self.shape = (m, n)
+        nodes = np.arange(m * n).reshape(m, n)
+        corner_nodes = np.stack([nodes[di : m - 1 + di, dj : n - 1 + dj] for di, dj in _CORNERS], axis=-1)
+        self.cols = (corner_nodes[..., None] * 2 + np.arange(2)).reshape(-1, 8)  # (cells, 8)
+        size = 2 * m * n
+        keys = (self.cols[:, :, None] * size + self.cols[:, None, :]).ravel()
+        unique, self.position = np.unique(keys, return_inverse=True)
+        self.position = self.position.ravel()
+        rows, cols = np.divmod(unique, size)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))])
+        self.indices = cols
+        self.size = size
+
+
+class CellJacobian:
+    """Jacobian of the cell residuals with respect to node displacements, as per-cell blocks (cells, 3, 8)."""
+
+    def __init__(self, blocks: np.ndarray, pattern: _GramPattern):
+        self.blocks = blocks
+        self.pattern = pattern
+        self.shape = (3 * blocks.shape[0], pattern.size)
+
+    def matrix(self) -> sp.csr_matrix:
+        """The Jacobian as a sparse matrix (rows cell * 3 + component)."""
+        cells = self.blocks.shape[0]
+        rows = np.repeat(np.arange(3 * cells), 8)
+        cols = np.repeat(self.pattern.cols, 3, axis=0).ravel()
+        return sp.csr_matrix((self.blocks.ravel(), (rows, cols)), shape=self.shape)
+
+    def rmatvec(self, x: np.ndarray) -> np.ndarray:
+        """J^T x for x of shape (3 cells,) or (3 cells, k)."""
+        xr = x.reshape(self.blocks.shape[0], 3, -1)
+        contrib = np.einsum("cai,cak->cik", self.blocks, xr).reshape(-1, xr.shape[-1])
+        cols = self.pattern.cols.ravel()
+        out = np.stack([np.bincount(cols, weights=contrib[:, k], minlength=self.pattern.size) for k in range(xr.shape[-1])], -1)
+        return out.reshape((self.pattern.size,) + x.shape[1:])
+
+    def gram(self) -> sp.csr_matrix:
+        """J^T J, assembled from the per-cell 8 x 8 products."""
+        products = np.einsum("cai,caj->cij", self.blocks, self.blocks).ravel()
+        data = np.bincount(self.pattern.position, weights=products, minlength=len(self.pattern.indices))
+        return sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr), shape=(self.pattern.size,) * 2)

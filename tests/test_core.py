@@ -105,7 +105,9 @@ def test_gradient_is_directional_derivative_of_composition():
     assert fd == pytest.approx(np.sum(density * v), rel=1e-5)
     res, node_jac = ob.linearize(pair.rotation, h, dr, dt)
     assert res @ res == pytest.approx(e)
-    assert np.allclose(2 * node_jac.T @ res, density.ravel())
+    assert np.allclose(2 * node_jac.matrix().T @ res, density.ravel())
+    assert np.allclose(node_jac.rmatvec(res), node_jac.matrix().T @ res)
+    assert abs(node_jac.gram() - node_jac.matrix().T @ node_jac.matrix()).max() < 1e-10
 
 
 @pytest.fixture(scope="module")
