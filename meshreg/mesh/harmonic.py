@@ -105,7 +105,7 @@ def parametrize(disk: DiskMesh, *, corners=None, start: int | None = None, weigh
     if len(interior):
         a = lap[interior][:, interior].tocsc()
         b = -lap[interior][:, loop] @ uv[loop]
-        uv[interior] = np.column_stack([spla.spsolve(a, b[:, 0]), spla.spsolve(a, b[:, 1])])
+        uv[interior] = spla.splu(a).solve(np.ascontiguousarray(b))
     d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
     signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
     info = {"corners": loop[pos].tolist(), "flipped": int(np.sum(signed < 0)), "degenerate": int(np.sum(np.abs(signed) < 1e-14))}

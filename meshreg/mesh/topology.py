@@ -61,9 +61,11 @@ class DiskMesh:
 
 
 def _edges(faces):
+    """Directed edges (3m, 2), the undirected edge keys, each directed edge's key index, and use counts."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    uniq, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
+    key = lo * (int(faces.max()) + 1) + hi  # one int64 per undirected edge: much faster than unique(axis=0)
+    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     return e, uniq, inverse.ravel(), counts
 
 
@@ -100,12 +102,14 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
         raise InputError(f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first")
     # components over faces sharing vertices
     n = len(v)
-    incidence = sp.csr_matrix((np.ones(f.size), (np.repeat(np.arange(len(f)), 3), f.ravel())), shape=(len(f), n))
-    ncomp, labels = connected_components(incidence @ incidence.T, directed=False)
+    adjacency = sp.csr_matrix((np.ones(2 * len(f)), (f[:, [0, 1]].ravel(), f[:, [1, 2]].ravel())), shape=(n, n))
+    _, vertex_labels = connected_components(adjacency, directed=False)
+    labels = vertex_labels[f[:, 0]]
+    ncomp = len(np.unique(labels))
     if ncomp > 1:
         if not cleanup:
             raise InputError(f"the mesh has {ncomp} connected components: keep one or allow cleanup")
-        keep = labels == np.bincount(labels).argmax()
+        keep = labels == np.bincount(labels).argmax()  # the component with the most triangles
         report.append(f"kept the largest of {ncomp} components ({int(keep.sum())} of {len(f)} triangles)")
         f = f[keep]
     for _ in range(10):
