@@ -98,7 +98,8 @@ def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bo
     c2 = input_colors(len(v2), mr.second.vertex_map, mr.colors2)
     write_ply(out / "first.ply", v1, f1, c1)
     write_ply(out / "second.ply", v2, f2, c2)
-    reg_v, reg_f, reg_c = registered_mesh(mr)
+    objective = Objective(*mr.grids)
+    reg_v, reg_f, reg_c = registered_mesh(mr, objective)
     write_ply(out / "registered.ply", reg_v, reg_f, reg_c)
     uv1 = np.full((len(v1), 2), np.nan)
     uv1[mr.first.vertex_map] = mr.uv1
@@ -106,7 +107,6 @@ def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bo
     uv2[mr.second.vertex_map] = mr.uv2
     mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)
     plot_meshes(out / "meshes.png", v1, f1, c1, v2, f2, c2, title=f"E = {mr.result.energy:.3g}: corresponding points share a colour")
-    objective = Objective(*mr.grids)
     plot_registration(mr.result.apply(objective.first.points), objective.points(mr.result.h), mr.result.energy_history,
                       out / FIGURE_FILE, title=f"E = {mr.result.energy:.3g}")
     for name, info in mr.info.items():

@@ -110,10 +110,6 @@ class GridSurface:
         """The surface divided by sqrt(area), so that its area is 1."""
         return GridSurface(self.points / np.sqrt(self.area()), self.r, self.t)
 
-    def transposed(self) -> "GridSurface":
-        """The surface with r and t swapped (points (N, M, 3)); orientation of q flips sign."""
-        return GridSurface(np.ascontiguousarray(self.points.transpose(1, 0, 2)), self.t, self.r)
-
     def save(self, path) -> None:
         """Write ``points``, ``r`` and ``t`` to an ``.npz`` file."""
         np.savez(path, points=self.points, r=self.r, t=self.t)

@@ -23,7 +23,14 @@ import scipy.sparse as sp
 from .diffeo import identity
 from .grid import GridSurface
 from .spline import GridInterpolator
-from .srnf import cell_weights, cross_covariance, energy_gradient_points, shape_function, shape_function_jacobians
+from .srnf import (
+    cell_weights,
+    cross_covariance,
+    energy,
+    energy_gradient_points,
+    shape_function,
+    shape_function_jacobians,
+)
 
 
 class Objective:
@@ -61,8 +68,7 @@ class Objective:
 
     def energy(self, rotation: np.ndarray, h: np.ndarray) -> float:
         """E(h, R)."""
-        diff = self.q1 @ rotation.T - self.q2(h)
-        return float(np.sum(self.weights * np.sum(diff * diff, axis=-1)))
+        return energy(self.q1, self.q2(h), self.weights, rotation)
 
     def best_rotation_covariance(self, h: np.ndarray) -> np.ndarray:
         """H = sum w q1 (q2, h)^T, whose Kabsch rotation minimizes E(h, .)."""

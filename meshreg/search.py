@@ -23,6 +23,7 @@ from .grid import GridSurface
 from .objective import Objective
 from .rotation import kabsch
 from .spline import GridInterpolator
+from .srnf import cell_normals
 
 # (swap r and t, flip r, flip t); index 0 is the identity
 SQUARE_SYMMETRIES = tuple(product((False, True), repeat=3))
@@ -72,7 +73,7 @@ def _principal_axes(surface: GridSurface) -> np.ndarray:
     """Eigenvectors (columns, decreasing variance) of the area-weighted covariance of the points."""
     c = surface.points
     centres = 0.25 * (c[1:, 1:] + c[:-1, :-1] + c[1:, :-1] + c[:-1, 1:]).reshape(-1, 3)
-    n = 0.5 * np.cross(c[1:, 1:] - c[:-1, :-1], c[:-1, 1:] - c[1:, :-1]).reshape(-1, 3)
+    n = cell_normals(c).reshape(-1, 3)
     w = np.linalg.norm(n, axis=1)
     mean = (w[:, None] * centres).sum(0) / w.sum()
     d = centres - mean

@@ -51,9 +51,7 @@ def shape_function(points: np.ndarray, r: np.ndarray, t: np.ndarray) -> np.ndarr
     >>> round(float(shape_function(np.stack([2 * R, T, 0 * R], -1), r, t)[0, 0, 2]) ** 2, 9)
     2.0
     """
-    v = cell_normals(points) / cell_weights(r, t)[..., None]
-    norm = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.sqrt(np.maximum(norm, _TINY))
+    return _cells(points, cell_weights(r, t))[-1]
 
 
 def energy(q1: np.ndarray, q2: np.ndarray, weights: np.ndarray, rotation: np.ndarray | None = None) -> float:
@@ -80,7 +78,7 @@ def _cells(points: np.ndarray, weights: np.ndarray):
     d1 = points[1:, 1:] - points[:-1, :-1]
     d2 = points[:-1, 1:] - points[1:, :-1]
     w = weights[..., None]
-    v = 0.5 * np.cross(d1, d2) / w
+    v = cell_normals(points) / w
     norm = np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), _TINY)
     return d1, d2, w, v, norm, v / np.sqrt(norm)
 

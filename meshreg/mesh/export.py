@@ -33,16 +33,15 @@ def input_colors(n_input: int, vertex_map: np.ndarray, colors: np.ndarray) -> np
     return out
 
 
-def registered_mesh(mr: MeshRegistration):
+def registered_mesh(mr: MeshRegistration, objective):
     """The second surface sampled at h on the first's grid, brought into the first's frame (R^T, scale, centroid).
 
-    Returns vertices (M N, 3), faces and colours (those of the first's grid nodes).
+    ``objective`` is the :class:`meshreg.objective.Objective` of ``mr.grids``. Returns vertices
+    (M N, 3), faces and colours (those of the first's grid nodes).
     """
-    from ..objective import Objective
-
     res = mr.result
-    g1, g2 = mr.grids
-    pts = Objective(g1, g2).points(res.h) @ res.rotation * np.sqrt(g1.area())
+    g1 = mr.grids[0]
+    pts = objective.points(res.h) @ res.rotation * np.sqrt(g1.area())
     pts = pts + (g1.points.reshape(-1, 3).mean(0) - pts.reshape(-1, 3).mean(0))
     uv = np.stack(np.meshgrid(res.r, res.t, indexing="ij"), -1).reshape(-1, 2)
     return pts.reshape(-1, 3), grid_faces(len(res.r), len(res.t)), uv_colors(uv)
