@@ -82,29 +82,32 @@ def _register_params(args) -> dict:
     return params
 
 
+def _mesh_params(args) -> dict:
+    return {"grid": args.resolution, "weights": args.weights, "cleanup": not args.no_cleanup,
+            "corners": (args.corners1, args.corners2), "corner_search": args.corner_search}
+
+
 def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bool):
     """Mesh pipeline: register (vertices, faces) pairs and write coloured meshes, result and figures."""
     from tqdm import tqdm
 
     from .mesh.correspond import register_meshes
-    from .mesh.export import input_colors, plot_meshes, registered_mesh, write_ply
+    from .mesh.export import UNMATCHED, on_input_vertices, plot_meshes, registered_mesh, write_ply
     from .objective import Objective
     from .viz import plot_registration
 
     with tqdm(desc="registering", unit=" steps", disable=quiet, leave=False) as bar:
         mr = register_meshes(first, second, callback=_progress_callback(bar), **params)
     (v1, f1), (v2, f2) = first, second
-    c1 = input_colors(len(v1), mr.first.vertex_map, mr.colors1)
-    c2 = input_colors(len(v2), mr.second.vertex_map, mr.colors2)
+    c1 = on_input_vertices(mr.colors1, mr.first.vertex_map, len(v1), UNMATCHED)
+    c2 = on_input_vertices(mr.colors2, mr.second.vertex_map, len(v2), UNMATCHED)
     write_ply(out / "first.ply", v1, f1, c1)
     write_ply(out / "second.ply", v2, f2, c2)
     objective = Objective(*mr.grids)
     reg_v, reg_f, reg_c = registered_mesh(mr, objective)
     write_ply(out / "registered.ply", reg_v, reg_f, reg_c)
-    uv1 = np.full((len(v1), 2), np.nan)
-    uv1[mr.first.vertex_map] = mr.uv1
-    uv2 = np.full((len(v2), 2), np.nan)
-    uv2[mr.second.vertex_map] = mr.uv2
+    uv1 = on_input_vertices(mr.uv1, mr.first.vertex_map, len(v1), [np.nan, np.nan])
+    uv2 = on_input_vertices(mr.uv2, mr.second.vertex_map, len(v2), [np.nan, np.nan])
     mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)
     plot_meshes(out / "meshes.png", v1, f1, c1, v2, f2, c2, title=f"E = {mr.result.energy:.3g}: corresponding points share a colour")
     plot_registration(mr.result.apply(objective.first.points), objective.points(mr.result.h), mr.result.energy_history,
@@ -127,7 +130,8 @@ def cmd_register(args) -> int:
             raise InputError("give two meshes or two grid files, not one of each")
         first, second = load_mesh(args.first), load_mesh(args.second)
         out = _output_dir(args.output, [Path(args.first), Path(args.second)])
-        result = _register_meshes_and_write(first, second, out, _register_params(args), args.quiet)
+        params = {**_register_params(args), **_mesh_params(args)}
+        result = _register_meshes_and_write(first, second, out, params, args.quiet)
         print(_summary(result, out))
         print(f"               {out / 'first.ply'}, {out / 'second.ply'}, {out / 'registered.ply'}, {out / 'meshes.png'}")
         return 0
@@ -176,6 +180,8 @@ def cmd_paper(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from .descent import DEFAULT_BASIS
     from .dp import DEFAULT_WINDOW
+    from .mesh.correspond import CORNER_SEARCH
+    from .mesh.resample import DEFAULT_GRID
     from .register import DEFAULT_MODE, MODES, REFINEMENTS, SOLVERS
 
     parser = argparse.ArgumentParser(prog="meshreg", description="Elastic shape registration of surfaces.")
@@ -192,6 +198,14 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument("--refine", choices=REFINEMENTS, default="nodes", help="node-wise refinement (default nodes)")
     reg.add_argument("--max-rounds", type=int, default=None, help="most descent + Kabsch rounds per stage")
     reg.add_argument("--grid", type=int, nargs=2, metavar=("M", "N"), help="grid size of text files without header")
+    mesh = reg.add_argument_group("meshes")
+    mesh.add_argument("--resolution", type=int, default=DEFAULT_GRID, help=f"meshes are resampled on N x N grids (default {DEFAULT_GRID})")
+    mesh.add_argument("--weights", choices=("mean-value", "cotangent"), default="mean-value", help="Laplacian weights of the map to the square")
+    mesh.add_argument("--no-cleanup", action="store_true", help="refuse to repair meshes (holes, components, ears, pinched vertices)")
+    mesh.add_argument("--corners1", type=int, nargs=4, metavar="ID", help="corner vertex ids of the first mesh's boundary")
+    mesh.add_argument("--corners2", type=int, nargs=4, metavar="ID", help="corner vertex ids of the second mesh's boundary")
+    mesh.add_argument("--corner-search", type=int, default=CORNER_SEARCH,
+                      help=f"trial corner placements on round boundaries, 0 = off (default {CORNER_SEARCH})")
     reg.add_argument("--symmetric", action="store_true", help="also register SECOND onto FIRST and report both energies")
     reg.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     reg.set_defaults(func=cmd_register)

@@ -44,6 +44,26 @@ def test_remeshed_rotated_copy_gives_small_energy_and_matching_colours(surface):
     assert err <= 0.1 * typical
 
 
+def test_face_scan_crop_with_holes_against_remeshed_copy():
+    pytest.importorskip("pymeshlab")
+    from meshreg.mesh.samples import face_scan_crop, remeshed_range_scan
+
+    v1, f1 = face_scan_crop(50.0)  # raw: holes, a pinched boundary vertex, a round boundary
+    rot = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
+    v2, f2, xy2 = remeshed_range_scan(v1, f1, 15000, seed=1, rotation=rot, scale=0.01)
+    mr = register_meshes((v1, f1), (v2, f2), grid=41)
+    assert any("filled" in line for line in mr.info["first"]["cleanup"])
+    assert mr.result.energy <= 0.02
+    assert angle_between(mr.result.rotation, rot) < 2.0
+    k1, k2 = len(mr.first.vertex_map), len(mr.second.vertex_map)  # input vertices (hole centres follow)
+    truth_uv = LinearNDInterpolator(mr.first.vertices[:k1, :2], mr.uv1[:k1])(xy2[mr.second.vertex_map])
+    ok = ~np.isnan(truth_uv[:, 0])
+    truth = uv_colors(truth_uv[ok])
+    err = np.median(np.linalg.norm(mr.colors2[:k2][ok] - truth, axis=1))
+    typical = np.median(np.linalg.norm(truth - truth[np.random.default_rng(0).permutation(len(truth))], axis=1))
+    assert err <= 0.1 * typical
+
+
 def _annulus():
     a = trimesh.creation.annulus(r_min=0.5, r_max=1.0, height=0.1, sections=24)
     keep = a.face_normals[:, 2] > 0.9  # the top ring only: a disk with a hole
@@ -54,7 +74,6 @@ def _annulus():
     "make, message",
     [
         (lambda: (trimesh.creation.icosphere().vertices, trimesh.creation.icosphere().faces), "closed"),
-        (_annulus, "boundary loops"),
         (lambda: (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0.0], [0.2, 0.2, -1]]),
                   np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4], [0, 2, 5]])), "non-manifold"),
         (lambda: (np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]])), "NaN"),
@@ -65,6 +84,35 @@ def test_bad_meshes(make, message):
     with pytest.raises(InputError, match=message):
         disk = prepare_disk(v, f)
         parametrize(disk)
+
+
+def test_holes_are_filled_or_refused():
+    v, f = _annulus()
+    with pytest.raises(InputError, match="boundary loops"):
+        prepare_disk(v, f, fill_holes=False)
+    disk = prepare_disk(v, f)
+    assert disk.report[0] == "filled 1 hole (24 boundary vertices)"
+    assert len(disk.vertices) == len(np.unique(f)) + 1 and len(disk.vertex_map) == len(np.unique(f))
+    uv, info = parametrize(disk)
+    assert info["flipped"] == 0
+
+
+def test_pinched_boundary_vertex_is_repaired():
+    # two triangulated squares (3 x 3 and 4 x 4 nodes) sharing only one corner vertex
+    def patch(n, origin, sign):
+        x, y = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        pts = np.c_[x.ravel(), y.ravel(), np.zeros(n * n)] * sign + origin
+        k = np.arange(n * n).reshape(n, n)
+        quads = np.c_[k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()]
+        return pts, np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    v1, f1 = patch(4, np.zeros(3), 1.0)
+    v2, f2 = patch(3, np.zeros(3), -1.0)  # its corner (0, 0) is vertex 0 of the first
+    f2 = np.where(f2 == 0, -len(v1), f2) + len(v1)
+    v, f = np.vstack([v1, v2]), np.vstack([f1, f2])
+    with pytest.raises(InputError, match="touches itself"):
+        prepare_disk(v, f, cleanup=False)
+    disk = prepare_disk(v, f)
+    assert any("touches itself" in line for line in disk.report)
 
 
 def test_cleanup_is_reported():
@@ -111,3 +159,20 @@ def test_cli_meshes_end_to_end_and_errors(tmp_path):
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "closed" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "o2" / "result.npz").exists()
+
+
+def test_cli_mesh_options(tmp_path):
+    v, f = _annulus()
+    trimesh.Trimesh(v, f, process=False).export(tmp_path / "ring.ply")
+    v2, f2, _ = random_disk_mesh(bump(), 300, seed=8)
+    trimesh.Trimesh(v2, f2, process=False).export(tmp_path / "b.ply")
+    base = [sys.executable, "-m", "meshreg.cli", "register", str(tmp_path / "ring.ply"), str(tmp_path / "b.ply"), "-q"]
+    proc = subprocess.run(base + ["-o", str(tmp_path / "o1"), "--no-cleanup"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "boundary loops" in proc.stderr
+    proc = subprocess.run(base + ["-o", str(tmp_path / "o2"), "--corners1", "0", "1", "2", "99999"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "corner" in proc.stderr and "Traceback" not in proc.stderr
+    proc = subprocess.run(base + ["-o", str(tmp_path / "o3"), "--resolution", "21", "--weights", "cotangent"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "filled 1 hole" in proc.stdout
+    with np.load(tmp_path / "o3" / "result.npz") as data:
+        assert data["h"].shape == (21, 21, 2)

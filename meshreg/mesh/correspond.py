@@ -7,10 +7,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 
+from ..errors import InputError
 from ..register import Registration, register
-from .harmonic import parametrize
+from ..search import best_start
+from .harmonic import HarmonicMap, arc_fraction, choose_corners, has_sharp_corners, quarter_corners
 from .resample import DEFAULT_GRID, resample_grid
 from .topology import DiskMesh, prepare_disk
+
+CORNER_SEARCH = 8  # trial corner placements of the second mesh within a quarter of its boundary
+CORNER_SEARCH_GRID = 21  # coarse grid on which the trial placements are ranked
 
 # colours of the square's corners (0,0), (1,0), (1,1), (0,1), blended bilinearly
 _CORNERS = np.array([[0.85, 0.10, 0.10], [0.95, 0.80, 0.10], [0.10, 0.55, 0.95], [0.15, 0.75, 0.25]])
@@ -48,19 +53,92 @@ class MeshRegistration:
     info: dict
 
 
-def register_meshes(first, second, *, grid: int = DEFAULT_GRID, cleanup: bool = True, weights: str = "mean-value", **params) -> MeshRegistration:
-    """Register two meshes given as (vertices, faces): parametrize, resample on grid x grid, register, colour.
+def _disk_ids(disk: DiskMesh, ids) -> np.ndarray:
+    """Indices in a cleaned disk of vertices given by their ids in the input mesh."""
+    ids = np.asarray(ids, dtype=np.int64)
+    at = np.clip(np.searchsorted(disk.vertex_map, ids), 0, len(disk.vertex_map) - 1)
+    if np.any(disk.vertex_map[at] != ids):
+        raise InputError(f"corner vertices {ids[disk.vertex_map[at] != ids].tolist()} are not in the cleaned mesh")
+    return at
 
-    Parameters are passed to :func:`meshreg.register` (default mode "auto", which tries the 8
-    symmetries of the square: which boundary vertex became the corner (0, 0) does not matter).
+
+def search_corners(first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, trials: int = CORNER_SEARCH) -> tuple[np.ndarray, list]:
+    """Corners of the second mesh that best match the first's: quarter arc lengths from ``trials`` starts
+    spaced by 1/(4 trials) of its boundary (a quarter turn is a symmetry of the square, which the ranking
+    tries too), then one halving step around the best, ranked by the coarse DP of
+    :func:`meshreg.search.best_start` on 21 x 21 grids.
+
+    A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
+    different places, and no reparametrization that keeps the corners can undo that. This finds them.
+
+    Returns the second's corner loop positions (4,) and the (start, energy) pairs tried.
     """
-    disks, uvs, infos = [], [], {}
+    n = CORNER_SEARCH_GRID
+    disk1, disk2 = first.disk, second.disk
+    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n)
+    base = arc_fraction(disk2, int(choose_corners(disk2)[0]))
+
+    def energy(start):
+        uv = second(quarter_corners(disk2, start))[0]
+        return best_start(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n))[0].energy
+
+    step = 0.25 / trials
+    tried = [(base + k * step, energy(base + k * step)) for k in range(trials)]
+    best = min(tried, key=lambda x: x[1])[0]
+    tried += [(best + d, energy(best + d)) for d in (-0.5 * step, 0.5 * step)]
+    best = min(tried, key=lambda x: x[1])[0]
+    return quarter_corners(disk2, best % 1.0), tried
+
+
+def register_meshes(
+    first,
+    second,
+    *,
+    grid: int = DEFAULT_GRID,
+    cleanup: bool = True,
+    weights: str = "mean-value",
+    corners: tuple = (None, None),
+    corner_search: int = CORNER_SEARCH,
+    **params,
+) -> MeshRegistration:
+    """Register two meshes given as (vertices, faces): clean, parametrize, resample, register, colour.
+
+    Parameters
+    ----------
+    first, second : tuple (vertices (n, 3), faces (m, 3))
+    grid : int
+        Both meshes are resampled on grid x grid nodes. Default 101.
+    cleanup : bool
+        Repairs of :func:`meshreg.mesh.prepare_disk` (default on, always reported in ``info``).
+    weights : {"mean-value", "cotangent"}
+        Laplacian weights of the map to the square.
+    corners : pair of (4 vertex ids or None)
+        Corner vertices of each mesh (ids in the mesh as given); default: chosen by
+        :func:`meshreg.mesh.harmonic.choose_corners`.
+    corner_search : int
+        Trial corner placements for the second mesh (:func:`search_corners`) when no corners are given
+        and the two boundaries do not both have four clear corners. 0 turns the search off. Default 8.
+    **params
+        Passed to :func:`meshreg.register` (default mode "auto", which tries the 8 symmetries of the
+        square: which corner of the boundary became (0, 0) does not matter).
+    """
+    disks, maps, infos = [], [], {}
     for name, (v, f) in (("first", first), ("second", second)):
         disk = prepare_disk(v, f, cleanup=cleanup)
-        uv, info = parametrize(disk, weights=weights)
         disks.append(disk)
+        maps.append(HarmonicMap(disk, weights))
+        infos[name] = {"cleanup": disk.report}
+    pos = [choose_corners(d, None if c is None else _disk_ids(d, c)) for d, c in zip(disks, corners)]
+    search = corner_search > 0 and corners == (None, None) and not all(has_sharp_corners(d) for d in disks)
+    if search:
+        pos[0] = quarter_corners(disks[0], arc_fraction(disks[0], int(pos[0][0])))
+        pos[1], tried = search_corners(maps[0], pos[0], maps[1], corner_search)
+        infos["second"]["corner_search"] = tried
+    uvs = []
+    for name, m, p in zip(("first", "second"), maps, pos):
+        uv, info = m(p)
         uvs.append(uv)
-        infos[name] = {**info, "cleanup": disk.report}
+        infos[name].update(info)
     grids = [resample_grid(d.vertices, d.faces, uv, grid, grid) for d, uv in zip(disks, uvs)]
     result = register(grids[0], grids[1], **params)
     colors1 = uv_colors(uvs[0])

@@ -23,30 +23,55 @@ def _turning(vertices, loop):
     return np.arccos(np.clip(cos, -1, 1))
 
 
+def _principal_extremes(disk: DiskMesh) -> np.ndarray:
+    """Loop positions of the boundary vertices reaching furthest along +-e1 and +-e2, the surface's two
+    main principal directions (area-weighted): the same surface points whatever the pose, scale,
+    triangulation or loop start, up to the order (a symmetry of the square)."""
+    v, f = disk.vertices, disk.faces
+    centres = v[f].mean(axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    mean = area @ centres / area.sum()
+    d = centres - mean
+    _, vecs = np.linalg.eigh((d * area[:, None]).T @ d)
+    proj = (v[disk.boundary] - mean) @ vecs[:, [2, 1]]
+    return np.unique([proj[:, 0].argmax(), proj[:, 1].argmax(), proj[:, 0].argmin(), proj[:, 1].argmin()])
+
+
+def has_sharp_corners(disk: DiskMesh) -> bool:
+    """Whether the boundary has exactly four clear corners (turns > 60 degrees)."""
+    return int(np.sum(_turning(disk.vertices, disk.boundary) > SHARP_TURN)) == 4
+
+
 def choose_corners(disk: DiskMesh, corners=None, start: int | None = None) -> np.ndarray:
     """Positions in the boundary loop of the four corners (increasing).
 
-    ``corners``: vertex ids given by the user. Else the four sharpest turns when the boundary has
-    four clear corners (turn > 60 degrees), else quarter arc lengths from ``start`` (a vertex id,
-    default the loop's first vertex).
+    In order of precedence: ``corners``, four vertex ids given by the user; quarter arc lengths from
+    ``start`` (a boundary vertex id) when it is given; the four sharpest turns when the boundary has
+    exactly four clear corners (turn > 60 degrees); else the boundary vertices reaching furthest along
+    the surface's two main principal directions (both ways), which do not depend on the pose, the
+    triangulation or where the loop starts; quarter arc lengths from there if two of those coincide.
     """
     loop = disk.boundary
     if corners is not None:
         pos = [int(np.flatnonzero(loop == c)[0]) if np.any(loop == c) else -1 for c in corners]
-        if len(pos) != 4 or min(pos) < 0:
-            raise InputError("corners must be 4 vertex ids on the boundary loop")
+        if len(pos) != 4 or min(pos) < 0 or len(set(pos)) < 4:
+            raise InputError("corners must be 4 distinct vertex ids on the boundary loop")
         return np.sort(pos)
-    turn = _turning(disk.vertices, loop)
-    sharp = np.flatnonzero(turn > SHARP_TURN)
-    if len(sharp) == 4:
-        return np.sort(sharp)
-    seg = np.linalg.norm(disk.vertices[np.roll(loop, -1)] - disk.vertices[loop], axis=1)
-    s0 = 0 if start is None else int(np.flatnonzero(loop == start)[0])
-    arc = np.concatenate([[0], np.cumsum(np.roll(seg, -s0))])[:-1]
-    pos = [(s0 + int(np.argmin(np.abs(arc - q * seg.sum())))) % len(loop) for q in (0, 0.25, 0.5, 0.75)]
-    if len(set(pos)) < 4:
+    if len(loop) < 4:
         raise InputError("the boundary has fewer than 4 vertices: it cannot be mapped to a square")
-    return np.array(pos)
+    if start is None:
+        sharp = np.flatnonzero(_turning(disk.vertices, loop) > SHARP_TURN)
+        if len(sharp) == 4:
+            return sharp
+        extremes = _principal_extremes(disk)
+        if len(extremes) == 4:
+            return extremes
+        s0 = int(extremes[0])
+    else:
+        if not np.any(loop == start):
+            raise InputError(f"start vertex {start} is not on the boundary loop")
+        s0 = int(np.flatnonzero(loop == start)[0])
+    return quarter_corners(disk, arc_fraction(disk, s0))
 
 
 def _boundary_uv(disk: DiskMesh, corner_pos: np.ndarray) -> np.ndarray:
@@ -84,29 +109,84 @@ def _weights(v, f, kind):
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
 
+def quarter_corners(disk: DiskMesh, start: float) -> np.ndarray:
+    """Loop positions (increasing) of the corners at quarter arc lengths from the point at arc-length
+    fraction ``start`` in [0, 1) of the boundary loop (measured from its first vertex)."""
+    loop = disk.boundary
+    seg = np.linalg.norm(disk.vertices[np.roll(loop, -1)] - disk.vertices[loop], axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)[:-1]]) / seg.sum()
+    targets = (start + np.array([0.0, 0.25, 0.5, 0.75])) % 1.0
+    gap = np.abs(arc[None, :] - targets[:, None])
+    pos = np.argmin(np.minimum(gap, 1.0 - gap), axis=1)
+    if len(set(pos.tolist())) < 4:
+        raise InputError("the boundary has fewer than 4 distinct quarter points: it cannot be mapped to a square")
+    return np.sort(pos)
+
+
+def arc_fraction(disk: DiskMesh, position: int) -> float:
+    """Arc-length fraction in [0, 1) of the boundary loop at loop position ``position``."""
+    loop = disk.boundary
+    seg = np.linalg.norm(disk.vertices[np.roll(loop, -1)] - disk.vertices[loop], axis=1)
+    return float(seg[:position].sum() / seg.sum())
+
+
+class HarmonicMap:
+    """The factorized Laplacian of a disk mesh: maps any placement of the corners on its boundary to uv.
+
+    One sparse LU serves every corner placement (the corner search solves once per placement).
+
+    Parameters
+    ----------
+    disk : DiskMesh
+    weights : {"mean-value", "cotangent"}
+        Mean-value (Floater) weights, positive, keep the map bijective onto the convex square;
+        cotangent weights (libigl's harmonic map) can flip triangles on scans.
+    """
+
+    def __init__(self, disk: DiskMesh, weights: str = "mean-value"):
+        if weights not in ("mean-value", "cotangent"):
+            raise InputError("weights must be 'mean-value' or 'cotangent'")
+        self.disk = disk
+        v, f, loop = disk.vertices, disk.faces, disk.boundary
+        w = _weights(v, f, weights)
+        lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
+        self.interior = np.setdiff1d(np.arange(len(v)), loop)
+        self._coupling = lap[self.interior][:, loop]
+        self._lu = spla.splu(lap[self.interior][:, self.interior].tocsc()) if len(self.interior) else None
+
+    def __call__(self, corner_pos: np.ndarray):
+        """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, increasing), and an
+        info dict: ``corners`` (vertex ids), ``flipped`` and ``degenerate`` (triangle counts after mapping)."""
+        disk = self.disk
+        f, loop = disk.faces, disk.boundary
+        uv = np.zeros((len(disk.vertices), 2))
+        uv[loop] = _boundary_uv(disk, corner_pos)
+        if self._lu is not None:
+            uv[self.interior] = self._lu.solve(np.ascontiguousarray(-(self._coupling @ uv[loop])))
+        d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
+        signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+        info = {"corners": loop[corner_pos].tolist(), "flipped": int(np.sum(signed < 0)),
+                "degenerate": int(np.sum(np.abs(signed) < 1e-14))}
+        return np.clip(uv, 0.0, 1.0), info
+
+
 def parametrize(disk: DiskMesh, *, corners=None, start: int | None = None, weights: str = "mean-value"):
-    """uv in [0, 1]^2 for every vertex of a disk mesh.
+    """uv in [0, 1]^2 for every vertex of a disk mesh (corners by :func:`choose_corners`).
 
     Returns
     -------
     uv : ndarray (n, 2)
     info : dict
         ``corners`` (vertex ids), ``flipped`` and ``degenerate`` (triangle counts after mapping).
+
+    Examples
+    --------
+    >>> from meshreg.mesh.samples import random_disk_mesh
+    >>> from meshreg.mesh.topology import prepare_disk
+    >>> from meshreg.samples import bump
+    >>> v, f, _ = random_disk_mesh(bump(), 200, seed=0)
+    >>> uv, info = parametrize(prepare_disk(v, f))
+    >>> info["flipped"], bool(uv.min() >= 0 and uv.max() <= 1)
+    (0, True)
     """
-    if weights not in ("mean-value", "cotangent"):
-        raise InputError("weights must be 'mean-value' or 'cotangent'")
-    pos = choose_corners(disk, corners, start)
-    v, f, loop = disk.vertices, disk.faces, disk.boundary
-    uv = np.zeros((len(v), 2))
-    uv[loop] = _boundary_uv(disk, pos)
-    w = _weights(v, f, weights)
-    lap = sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w
-    interior = np.setdiff1d(np.arange(len(v)), loop)
-    if len(interior):
-        a = lap[interior][:, interior].tocsc()
-        b = -lap[interior][:, loop] @ uv[loop]
-        uv[interior] = spla.splu(a).solve(np.ascontiguousarray(b))
-    d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
-    signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    info = {"corners": loop[pos].tolist(), "flipped": int(np.sum(signed < 0)), "degenerate": int(np.sum(np.abs(signed) < 1e-14))}
-    return np.clip(uv, 0.0, 1.0), info
+    return HarmonicMap(disk, weights)(choose_corners(disk, corners, start))

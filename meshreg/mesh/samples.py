@@ -1,12 +1,18 @@
-"""Sample disk meshes made at run time: a terrain patch from matplotlib's Jacksboro fault DEM and a random
-re-triangulated, rotated, scaled copy of it (so nothing is downloaded and nothing large is committed)."""
+"""Sample disk meshes made at run time from data inside installed wheels (nothing is downloaded and nothing
+large is committed): a terrain patch from matplotlib's Jacksboro fault DEM, a crop of pymeshlab's face000
+range scan (GPL: read from the wheel, never copied into the project), and random re-triangulated, rotated,
+scaled copies of them."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
-from scipy.interpolate import RegularGridInterpolator
-from scipy.spatial import Delaunay
+from scipy.interpolate import LinearNDInterpolator, RegularGridInterpolator
+from scipy.spatial import Delaunay, cKDTree
 from scipy.spatial.transform import Rotation
+
+from ..errors import InputError
 
 
 def terrain_function(size: int = 20):
@@ -19,6 +25,62 @@ def terrain_function(size: int = 20):
     axis = np.linspace(0, 1, size)
     interp = RegularGridInterpolator((axis, axis), z, method="cubic")
     return lambda u, v: np.stack([u, v, 1.5 * interp(np.stack([u, v], -1))], -1)
+
+
+def face_scan_path() -> Path:
+    """Path of pymeshlab's ``tests/sample_meshes/rangemaps/face000.ply`` (a range scan of a sculpted head)."""
+    try:
+        import pymeshlab
+    except ImportError:
+        raise InputError("the face scan sample ships with pymeshlab: pip install 'meshreg[meshlab]'") from None
+    path = Path(pymeshlab.__file__).parent / "tests" / "sample_meshes" / "rangemaps" / "face000.ply"
+    if not path.is_file():
+        raise InputError(f"{path} is missing from this pymeshlab installation")
+    return path
+
+
+def face_scan_crop(radius: float = 60.0):
+    """The raw triangles of the face scan within ``radius`` (mm) of its median point, seen along the scan's
+    view axis z: holes, pinched boundary vertices and stray fragments included. Returns vertices (n, 3), faces (m, 3)."""
+    from .topology import load_mesh
+
+    v, f = load_mesh(face_scan_path())
+    inside = np.linalg.norm(v[:, :2] - np.median(v[:, :2], axis=0), axis=1) < radius
+    return v, f[inside[f].all(axis=1)]
+
+
+def remeshed_range_scan(vertices, faces, n_points: int, seed: int, rotation=None, scale: float = 1.0):
+    """A new random triangulation of a range scan (z a function of x, y) over the same region, holes kept.
+
+    Random points of the region's bounding disc (plus its rim) are Delaunay-triangulated, lifted by linear
+    interpolation of the scan, and triangles far from any scan vertex (holes, outside) are dropped. The
+    result is rotated, scaled, shifted and its vertex order shuffled. Returns vertices (k, 3), faces and
+    each vertex's (x, y) before the motion (k, 2), which identifies corresponding points.
+    """
+    rng = np.random.default_rng(seed)
+    used = np.unique(faces)
+    xy, z = vertices[used, :2], vertices[used, 2]
+    centre = np.median(xy, axis=0)
+    radius = np.linalg.norm(xy - centre, axis=1).max()
+    rim = 2 * np.pi * rng.random(n_points // 20)
+    disc = np.sqrt(rng.random(n_points)) * radius, 2 * np.pi * rng.random(n_points)
+    pts = centre + np.vstack([radius * np.c_[np.cos(rim), np.sin(rim)], np.c_[disc[0] * np.cos(disc[1]), disc[0] * np.sin(disc[1])]])
+    tri = Delaunay(pts).simplices
+    spacing = np.median(np.linalg.norm(vertices[faces[:, 0], :2] - vertices[faces[:, 1], :2], axis=1))
+    gap, _ = cKDTree(xy).query(pts[tri].mean(axis=1))
+    height = LinearNDInterpolator(xy, z)(pts)
+    tri = tri[(gap < 1.2 * spacing) & np.isfinite(height[tri]).all(axis=1)]
+    lifted = np.c_[pts, height]
+    longest = np.max([np.linalg.norm(lifted[tri[:, k]] - lifted[tri[:, k - 1]], axis=1) for k in range(3)], axis=0)
+    tri = tri[longest < 4 * np.median(longest)]  # no walls across depth jumps of the scan
+    kept = np.unique(tri)
+    pts, verts, tri = pts[kept], lifted[kept], np.searchsorted(kept, tri)
+    if rotation is not None:
+        verts = verts @ np.asarray(rotation).T
+    verts = scale * verts + rng.normal(size=3)
+    perm = rng.permutation(len(pts))
+    inv = np.argsort(perm)
+    return verts[perm], inv[tri], pts[perm]
 
 
 def random_disk_mesh(surface, n_points: int, seed: int, border: int = 24, rotation=None, scale: float = 1.0):

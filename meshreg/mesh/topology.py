@@ -47,8 +47,9 @@ class DiskMesh:
     faces : ndarray (m, 3)
     boundary : ndarray (b,)
         Vertex indices of the boundary loop, in the order that makes the faces' orientation positive.
-    vertex_map : ndarray (n,)
-        Index of each vertex in the mesh as given (cleanup may drop vertices).
+    vertex_map : ndarray (k,), k <= n
+        Index in the mesh as given of each of the first k vertices (cleanup may drop vertices); the
+        n - k vertices after them were added by hole filling (one at the centre of each filled hole).
     report : list of str
         What the cleanup did.
     """
@@ -69,18 +70,39 @@ def _edges(faces):
     return e, uniq, inverse.ravel(), counts
 
 
-def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = True) -> DiskMesh:
+def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = True, fill_holes: bool | None = None) -> DiskMesh:
     """Check (and with ``cleanup``, repair what is safe) that a mesh is a topological disk.
 
     Cleanup, always reported: drop degenerate (zero-area) triangles, keep the largest connected
-    component, drop triangles whose three corners are all on the boundary (they collapse under a
-    convex map), drop unreferenced vertices.
+    component, fill holes, drop boundary ears (triangles with two sides, hence all three corners, on the
+    boundary: they collapse under a convex map), drop unreferenced vertices.
+
+    Parameters
+    ----------
+    vertices : ndarray (n, 3)
+    faces : ndarray (m, 3)
+    cleanup : bool
+        Repair what is safe (default) instead of raising: also removes the triangles around vertices
+        where the boundary touches itself (non-manifold vertices, common in range scans).
+    fill_holes : bool, optional
+        Close every boundary loop but the longest (the outer boundary) with a fan around a new vertex
+        at the hole's centroid. Defaults to ``cleanup``.
 
     Raises
     ------
     InputError
-        NaN coordinates, non-manifold edges, a closed surface, several boundary loops.
+        NaN coordinates, non-manifold edges, a closed surface, several boundary loops (without hole filling).
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> ring = trimesh.creation.annulus(r_min=0.3, r_max=1.0, height=0.1, sections=32)
+    >>> top = ring.faces[ring.face_normals[:, 2] > 0.9]
+    >>> disk = prepare_disk(ring.vertices, top)
+    >>> disk.report[0]
+    'filled 1 hole (32 boundary vertices)'
     """
+    fill_holes = cleanup if fill_holes is None else fill_holes
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
@@ -100,6 +122,16 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     _, uniq, _, counts = _edges(f)
     if np.any(counts > 2):
         raise InputError(f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first")
+    for _ in range(10):
+        starts, uses = np.unique(_boundary_edges(f)[:, 0], return_counts=True)
+        pinched = starts[uses > 1]  # the boundary passes twice through these vertices
+        if not (cleanup and len(pinched)):
+            break
+        touching = np.isin(f, pinched).any(axis=1)
+        f = f[~touching]
+        report.append(f"removed {int(touching.sum())} triangles around {len(pinched)} vertices where the boundary touches itself")
+    if len(f) == 0:
+        raise InputError("no triangles are left after cleanup: the mesh is not a usable disk")
     # components over faces sharing vertices
     n = len(v)
     adjacency = sp.csr_matrix((np.ones(2 * len(f)), (f[:, [0, 1]].ravel(), f[:, [1, 2]].ravel())), shape=(n, n))
@@ -112,17 +144,25 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
         keep = labels == np.bincount(labels).argmax()  # the component with the most triangles
         report.append(f"kept the largest of {ncomp} components ({int(keep.sum())} of {len(f)} triangles)")
         f = f[keep]
-    for _ in range(10):
-        boundary_vertices = np.unique(_boundary_edges(f))
-        on_boundary = np.isin(f, boundary_vertices).all(axis=1)
-        if not (cleanup and on_boundary.any() and on_boundary.sum() < len(f)):
+    loops = _boundary_loops(f)
+    if len(loops) > 1 and fill_holes:
+        v, f, added = _fill_holes(v, f, loops)
+        report.append(f"filled {added} hole{'s' if added > 1 else ''} ({sum(len(x) for x in loops) - max(len(x) for x in loops)} boundary vertices)")
+    removed = 0
+    while cleanup and len(f) > 1:
+        _, _, inverse, counts = _edges(f)
+        ears = (counts[inverse] == 1).reshape(3, -1).sum(axis=0) >= 2  # two sides on the boundary
+        if not ears.any() or ears.all():
             break
-        f = f[~on_boundary]
-        report.append(f"removed {int(on_boundary.sum())} triangles with all corners on the boundary")
+        f = f[~ears]
+        removed += int(ears.sum())
+    if removed:
+        report.append(f"removed {removed} boundary ears (triangles with two sides on the boundary)")
     used = np.unique(f)
-    if len(used) < n:
-        report.append(f"dropped {n - len(used)} unreferenced vertices")
-    remap = np.full(n, -1)
+    original = used[used < n]
+    if len(original) < n:
+        report.append(f"dropped {n - len(original)} unreferenced vertices")
+    remap = np.full(len(v), -1)
     remap[used] = np.arange(len(used))
     v, f = v[used], remap[f]
     loops = _boundary_loops(f)
@@ -135,7 +175,24 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     euler = len(v) - len(uniq) + len(f)
     if euler != 1:
         raise InputError(f"the mesh is not a disk (Euler characteristic {euler}, a disk has 1)")
-    return DiskMesh(v, f, np.array(loops[0]), used, report)
+    return DiskMesh(v, f, np.array(loops[0]), original, report)
+
+
+def _fill_holes(v, f, loops):
+    """Close all loops but the longest (in length) by fans around their centroids; returns v, f, holes filled."""
+    lengths = [np.linalg.norm(v[np.roll(x, -1)] - v[x], axis=1).sum() for x in loops]
+    outer = int(np.argmax(lengths))
+    new_v, new_f = [v], [f]
+    n = len(v)
+    for k, loop in enumerate(loops):
+        if k == outer:
+            continue
+        loop = np.asarray(loop)
+        new_v.append(v[loop].mean(axis=0, keepdims=True))
+        # the loop runs with the mesh on its left: the filling faces use its edges backwards
+        new_f.append(np.c_[np.roll(loop, -1), loop, np.full(len(loop), n)])
+        n += 1
+    return np.vstack(new_v), np.vstack(new_f), len(loops) - 1
 
 
 def _boundary_edges(faces):
