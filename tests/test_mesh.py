@@ -45,7 +45,6 @@ def test_remeshed_rotated_copy_gives_small_energy_and_matching_colours(surface):
 
 
 def test_face_scan_crop_with_holes_against_remeshed_copy():
-    pytest.importorskip("pymeshlab")
     from meshreg.mesh.samples import face_scan_crop, remeshed_range_scan
 
     v1, f1 = face_scan_crop(50.0)  # raw: holes, a pinched boundary vertex, a round boundary

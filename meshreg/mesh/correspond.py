@@ -5,11 +5,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, RegularGridInterpolator
+from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..register import Registration, register
 from ..search import best_start
+from ..spline import GridInterpolator
 from .harmonic import HarmonicMap, arc_fraction, choose_corners, has_sharp_corners, quarter_corners
 from .resample import DEFAULT_GRID, resample_grid
 from .topology import DiskMesh, prepare_disk
@@ -53,7 +55,7 @@ class MeshRegistration:
     info: dict
 
 
-def _disk_ids(disk: DiskMesh, ids) -> np.ndarray:
+def disk_ids(disk: DiskMesh, ids) -> np.ndarray:
     """Indices in a cleaned disk of vertices given by their ids in the input mesh."""
     ids = np.asarray(ids, dtype=np.int64)
     at = np.clip(np.searchsorted(disk.vertex_map, ids), 0, len(disk.vertex_map) - 1)
@@ -128,7 +130,7 @@ def register_meshes(
         disks.append(disk)
         maps.append(HarmonicMap(disk, weights))
         infos[name] = {"cleanup": disk.report}
-    pos = [choose_corners(d, None if c is None else _disk_ids(d, c)) for d, c in zip(disks, corners)]
+    pos = [choose_corners(d, None if c is None else disk_ids(d, c)) for d, c in zip(disks, corners)]
     search = corner_search > 0 and corners == (None, None) and not all(has_sharp_corners(d) for d in disks)
     if search:
         pos[0] = quarter_corners(disks[0], arc_fraction(disks[0], int(pos[0][0])))
@@ -144,3 +146,29 @@ def register_meshes(
     colors1 = uv_colors(uvs[0])
     colors2 = uv_colors(corresponding_uv(result, uvs[1]))
     return MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, colors1, colors2, infos)
+
+
+def similarity_transform(mr: MeshRegistration) -> np.ndarray:
+    """The similarity x -> s R x + b (4 x 4) taking the first mesh into the second's frame.
+
+    R is the registration's rotation; the scale s and shift b are the least-squares fit of the first's
+    grid points onto the second surface at h (their corresponding points), with R fixed.
+    """
+    g1, g2 = mr.grids
+    p = g1.points.reshape(-1, 3)
+    q = GridInterpolator(g2.points, g2.r, g2.t)(mr.result.h[..., 0], mr.result.h[..., 1])[0].reshape(-1, 3)
+    rp = (p - p.mean(axis=0)) @ mr.result.rotation.T
+    scale = float(np.sum(rp * (q - q.mean(axis=0))) / np.sum(rp * rp))
+    out = np.eye(4)
+    out[:3, :3] = scale * mr.result.rotation
+    out[:3, 3] = q.mean(axis=0) - scale * mr.result.rotation @ p.mean(axis=0)
+    return out
+
+
+def vertex_pairs(mr: MeshRegistration) -> np.ndarray:
+    """Pairs (k, 2) of input vertex ids (first, second): each kept vertex of the first mesh and the vertex
+    of the second whose uv is nearest to h(uv) (the point the registration matches it with)."""
+    k1, k2 = len(mr.first.vertex_map), len(mr.second.vertex_map)
+    h = RegularGridInterpolator((mr.result.r, mr.result.t), mr.result.h)(np.clip(mr.uv1[:k1], 0, 1))
+    _, nearest = cKDTree(mr.uv2[:k2]).query(h)
+    return np.c_[mr.first.vertex_map, mr.second.vertex_map[nearest]]

@@ -1,0 +1,28 @@
+"""What both adapters do with plain arrays: register two meshes and carry the results back to input vertices."""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+from meshreg.mesh.correspond import MeshRegistration, register_meshes
+from meshreg.mesh.export import UNMATCHED, on_input_vertices, registered_mesh
+from meshreg.objective import Objective
+
+
+def require(module: str, extra: str):
+    """Import ``module`` or raise an ImportError that names the extra to install."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as err:
+        raise ImportError(f"meshreg.plugins needs {module}: pip install 'meshreg[{extra}]' ({err})") from None
+
+
+def register_arrays(first, second, **params) -> tuple[MeshRegistration, np.ndarray, np.ndarray, tuple]:
+    """Register (vertices, faces) pairs; returns the mesh registration, colours (n1, 3) and (n2, 3) in [0, 1] on
+    the input vertices (grey where cleanup dropped a vertex) and the registered mesh (vertices, faces, colours)."""
+    mr = register_meshes(first, second, **params)
+    c1 = on_input_vertices(mr.colors1, mr.first.vertex_map, len(first[0]), UNMATCHED)
+    c2 = on_input_vertices(mr.colors2, mr.second.vertex_map, len(second[0]), UNMATCHED)
+    return mr, c1, c2, registered_mesh(mr, Objective(*mr.grids))

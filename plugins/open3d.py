@@ -1,0 +1,108 @@
+"""Open3D utility: elastic registration of two ``open3d.geometry.TriangleMesh`` disks.
+
+Examples
+--------
+>>> import open3d as o3d                                             # doctest: +SKIP
+>>> from meshreg.plugins import open3d as mo3d                       # doctest: +SKIP
+>>> result = mo3d.register(source, target)                           # doctest: +SKIP
+>>> source.transform(result.transformation)                          # doctest: +SKIP
+>>> o3d.visualization.draw_geometries([result.source_colored, result.target_colored])  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshreg.mesh.correspond import disk_ids, similarity_transform, vertex_pairs
+from meshreg.mesh.export import on_input_vertices
+from meshreg.mesh.harmonic import HarmonicMap, choose_corners
+from meshreg.mesh.topology import prepare_disk
+from meshreg.register import Registration
+
+from ._common import register_arrays, require
+
+o3d = require("open3d", "open3d")
+
+
+@dataclass
+class ElasticRegistrationResult:
+    """Shaped like Open3D's ``RegistrationResult``, plus the elastic quantities.
+
+    Attributes
+    ----------
+    transformation : ndarray (4, 4)
+        The similarity (rotation, uniform scale, translation) taking the source into the target's frame.
+    correspondence_set : ndarray (k, 2) int
+        Source vertex id -> target vertex id of matched points (every source vertex kept by cleanup).
+    energy : float
+        E, the squared elastic shape distance (both surfaces at area 1).
+    distance : float
+        sqrt(E).
+    source_colored, target_colored : open3d.geometry.TriangleMesh
+        Copies of the inputs with vertex_colors: corresponding points share a colour.
+    registered : open3d.geometry.TriangleMesh
+        The target resampled at h on the source's grid, in the source's frame.
+    registration : meshreg.Registration
+        The underlying result (R, h, energy history, parameters, timings).
+    """
+
+    transformation: np.ndarray
+    correspondence_set: np.ndarray
+    energy: float
+    distance: float
+    source_colored: object
+    target_colored: object
+    registered: object
+    registration: Registration
+
+
+def _arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
+    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.triangles, dtype=np.int64)
+
+
+def _colored(mesh, colors: np.ndarray):
+    out = o3d.geometry.TriangleMesh(mesh)
+    out.vertex_colors = o3d.utility.Vector3dVector(np.ascontiguousarray(colors, dtype=float))
+    return out
+
+
+def register(source, target, **params) -> ElasticRegistrationResult:
+    """Rotate (and scale, shift) ``source`` onto ``target`` and reparametrize ``target`` elastically.
+
+    Parameters
+    ----------
+    source, target : open3d.geometry.TriangleMesh
+        Disk-topology meshes (cleanup as in :func:`meshreg.mesh.prepare_disk`); neither is modified.
+    **params
+        As for :func:`meshreg.mesh.correspond.register_meshes` (grid, weights, corners, mode, window, ...).
+    """
+    mr, c1, c2, (rv, rf, rc) = register_arrays(_arrays(source), _arrays(target), **params)
+    registered = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(rv), o3d.utility.Vector3iVector(rf.astype(np.int32)))
+    registered.vertex_colors = o3d.utility.Vector3dVector(rc)
+    return ElasticRegistrationResult(
+        transformation=similarity_transform(mr),
+        correspondence_set=vertex_pairs(mr),
+        energy=mr.result.energy,
+        distance=mr.result.distance,
+        source_colored=_colored(source, c1),
+        target_colored=_colored(target, c2),
+        registered=registered,
+        registration=mr.result,
+    )
+
+
+def parametrize(mesh, *, weights: str = "mean-value", corners=None):
+    """A copy of ``mesh`` with ``triangle_uvs`` (3 per triangle) on the unit square: its map to the square.
+
+    ``corners``: four boundary vertex ids (default: :func:`meshreg.mesh.harmonic.choose_corners`).
+    Vertices dropped by cleanup (see :func:`meshreg.mesh.prepare_disk`) get uv NaN.
+    """
+    v, f = _arrays(mesh)
+    disk = prepare_disk(v, f)
+    uv, _ = HarmonicMap(disk, weights)(choose_corners(disk, None if corners is None else disk_ids(disk, corners)))
+    per_vertex = on_input_vertices(uv, disk.vertex_map, len(v), [np.nan, np.nan])
+    out = o3d.geometry.TriangleMesh(mesh)
+    out.triangle_uvs = o3d.utility.Vector2dVector(per_vertex[f].reshape(-1, 2))
+    return out
