@@ -10,7 +10,8 @@
 
 from .errors import InputError
 from .grid import GridSurface, read_grid
+from .batch import DistanceMatrix, distance_matrix
 from .register import MODES, Registration, register, register_symmetric
 
-__all__ = ["GridSurface", "InputError", "MODES", "Registration", "read_grid", "register", "register_symmetric"]
+__all__ = ["DistanceMatrix", "GridSurface", "InputError", "MODES", "Registration", "read_grid", "register", "register_symmetric", "distance_matrix"]
 __version__ = "0.1.0"

@@ -169,6 +169,63 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_matrix(args) -> int:
+    from tqdm import tqdm
+
+    from .batch import CHECKPOINT_SUFFIX, classical_mds, distance_matrix
+    from .viz import plot_matrix
+
+    files = [Path(f) for f in args.files]
+    out = Path(args.output)
+    if out.suffix != ".npz":
+        raise InputError(f"{out}: the matrix file must end in .npz")
+    if any(out.resolve() == f.resolve() for f in files):
+        raise InputError(f"{out} is one of the inputs: choose another output file")
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise InputError(f"no such file: {', '.join(missing)}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    client = None
+    if args.scheduler:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise InputError("--scheduler needs dask.distributed: pip install 'meshreg[dask]'") from None
+        try:
+            client = Client(args.scheduler, timeout="20s")
+        except (OSError, TimeoutError) as err:
+            raise InputError(f"cannot reach the Dask scheduler at {args.scheduler}: {err}") from None
+    checkpoint = out.with_name(out.name + CHECKPOINT_SUFFIX)
+    with tqdm(desc="pairs", unit=" pair", disable=args.quiet) as bar:
+        def progress(done, total):
+            bar.total = total
+            if bar.n == 0 and done:
+                bar.reset(total)  # resuming: count the checkpointed pairs, time only the new ones
+                bar.initial = done
+            bar.n = done
+            bar.refresh()
+
+        try:
+            result = distance_matrix(files, client=client, jobs=args.jobs, checkpoint=checkpoint,
+                                     resolution=args.resolution, progress=progress, mode=args.mode,
+                                     **_register_params(args))
+        except KeyboardInterrupt:
+            raise InputError(f"interrupted: finished pairs are kept in {checkpoint}; rerun the same command to resume") from None
+        finally:
+            if client is not None:
+                client.close()
+    result.save(out)
+    checkpoint.unlink(missing_ok=True)
+    n = len(files)
+    print(f"{n} surfaces, {n * (n - 1) // 2} pairs -> {out} (distance = sqrt(E), energy, rotations, seconds)")
+    for (i, j), reason in sorted(result.failures.items()):
+        print(f"failed pair {files[i].name} / {files[j].name}: {reason}")
+    if args.plot:
+        figure = plot_matrix(result.names, result.distance, classical_mds(result.distance), out.with_suffix(".png"))
+        print(f"figure         {figure}")
+    return 0
+
+
 def cmd_paper(args) -> int:
     from .paper import format_table, run_paper
 
@@ -177,12 +234,23 @@ def cmd_paper(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _registration_options(parser) -> None:
     from .descent import DEFAULT_BASIS
     from .dp import DEFAULT_WINDOW
+    from .register import DEFAULT_MODE, MODES, REFINEMENTS, SOLVERS
+
+    parser.add_argument("--mode", choices=MODES, default=DEFAULT_MODE, help=f"default {DEFAULT_MODE}")
+    parser.add_argument("--window", type=int, default=DEFAULT_WINDOW, help=f"DP window W (default {DEFAULT_WINDOW})")
+    parser.add_argument("--basis", type=int, default=DEFAULT_BASIS, help=f"KL of the Riseth basis (default {DEFAULT_BASIS})")
+    parser.add_argument("--solver", choices=SOLVERS, default="gauss-newton", help="descent direction (default gauss-newton)")
+    parser.add_argument("--refine", choices=REFINEMENTS, default="nodes", help="node-wise refinement (default nodes)")
+    parser.add_argument("--max-rounds", type=int, default=None, help="most descent + Kabsch rounds per stage")
+
+
+def build_parser() -> argparse.ArgumentParser:
     from .mesh.correspond import CORNER_SEARCH
     from .mesh.resample import DEFAULT_GRID
-    from .register import DEFAULT_MODE, MODES, REFINEMENTS, SOLVERS
+    from .register import MODES
 
     parser = argparse.ArgumentParser(prog="meshreg", description="Elastic shape registration of surfaces.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -191,12 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument("first", help="first surface (rotated): a mesh (.ply .obj .stl .off .glb) or a grid (.npy .npz text)")
     reg.add_argument("second", help="second surface (reparametrized)")
     reg.add_argument("-o", "--output", required=True, help="output directory (result.npz, registration.png)")
-    reg.add_argument("--mode", choices=MODES, default=DEFAULT_MODE, help=f"default {DEFAULT_MODE}")
-    reg.add_argument("--window", type=int, default=DEFAULT_WINDOW, help=f"DP window W (default {DEFAULT_WINDOW})")
-    reg.add_argument("--basis", type=int, default=DEFAULT_BASIS, help=f"KL of the Riseth basis (default {DEFAULT_BASIS})")
-    reg.add_argument("--solver", choices=SOLVERS, default="gauss-newton", help="descent direction (default gauss-newton)")
-    reg.add_argument("--refine", choices=REFINEMENTS, default="nodes", help="node-wise refinement (default nodes)")
-    reg.add_argument("--max-rounds", type=int, default=None, help="most descent + Kabsch rounds per stage")
+    _registration_options(reg)
     reg.add_argument("--grid", type=int, nargs=2, metavar=("M", "N"), help="grid size of text files without header")
     mesh = reg.add_argument_group("meshes")
     mesh.add_argument("--resolution", type=int, default=DEFAULT_GRID, help=f"meshes are resampled on N x N grids (default {DEFAULT_GRID})")
@@ -214,6 +277,17 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("-o", "--output", default="meshreg-demo", help="output directory (default meshreg-demo)")
     demo.add_argument("-q", "--quiet", action="store_true")
     demo.set_defaults(func=cmd_demo)
+
+    matrix = sub.add_parser("matrix", help="pairwise elastic distances of a collection (grids and/or meshes)")
+    matrix.add_argument("files", nargs="+", help="grid files and/or meshes")
+    matrix.add_argument("-o", "--output", required=True, help="the matrix file (.npz); a checkpoint sits beside it while running")
+    matrix.add_argument("--jobs", type=int, default=None, help="local worker processes (default: all cores)")
+    matrix.add_argument("--scheduler", help="a dask.distributed scheduler address, e.g. tcp://host:8786")
+    matrix.add_argument("--plot", action="store_true", help="also write OUTPUT.png: heat map, dendrogram, MDS")
+    _registration_options(matrix)
+    matrix.add_argument("--resolution", type=int, default=DEFAULT_GRID, help=f"meshes are resampled on N x N grids (default {DEFAULT_GRID})")
+    matrix.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    matrix.set_defaults(func=cmd_matrix)
 
     paper = sub.add_parser("paper", help="rerun the paper's ten pairs and print E, R and time beside its numbers")
     paper.add_argument("--grid", type=int, default=101, help="grid size M = N (default 101, as in the paper)")

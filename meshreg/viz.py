@@ -49,3 +49,40 @@ def plot_registration(first_rotated: np.ndarray, second_registered: np.ndarray, 
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_matrix(names, distance: np.ndarray, embedding: np.ndarray, path, title: str = "") -> Path:
+    """Write a PNG: the distance matrix as a heat map ordered by an average-linkage dendrogram (drawn above it),
+    and a 2D embedding (classical MDS) of the collection. Failed pairs (NaN) show blank."""
+    from scipy.cluster.hierarchy import dendrogram, linkage
+    from scipy.spatial.distance import squareform
+
+    d = np.where(np.isfinite(distance), distance, np.nanmax(distance))
+    fig = plt.figure(figsize=(13, 6.5))
+    grid = fig.add_gridspec(2, 2, height_ratios=[1, 4], width_ratios=[1.1, 1], hspace=0.02, wspace=0.25)
+    top, heat, emb = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[:, 1])
+    labels = [Path(str(n)).stem for n in names]
+    if len(d) > 2:
+        tree = dendrogram(linkage(squareform(d, checks=False), method="average"), ax=top, no_labels=True, color_threshold=0)
+        order = tree["leaves"]
+    else:
+        order = list(range(len(d)))
+    n = len(d)
+    top.set_xlim(0, 10 * n)  # dendrogram leaves sit at 5, 15, 25, ...: give the heat map the same axis
+    top.axis("off")
+    shown = distance[np.ix_(order, order)]
+    image = heat.imshow(shown, cmap="viridis", interpolation="nearest", aspect="auto", extent=(0, 10 * n, 10 * n, 0))
+    fig.colorbar(image, ax=heat, location="bottom", fraction=0.05, pad=0.18, label="elastic distance sqrt(E)")
+    ticks = 5 + 10 * np.arange(n)
+    heat.set_xticks(ticks, [labels[k] for k in order], rotation=90, fontsize=7)
+    heat.set_yticks(ticks, [labels[k] for k in order], fontsize=7)
+    emb.scatter(embedding[:, 0], embedding[:, 1], c="tab:blue")
+    for k, label in enumerate(labels):
+        emb.annotate(label, embedding[k], fontsize=7, xytext=(3, 3), textcoords="offset points")
+    emb.set_title("classical MDS of the distances")
+    emb.set_aspect("equal", adjustable="datalim")
+    fig.suptitle(title or f"{len(names)} surfaces, {len(names) * (len(names) - 1) // 2} pairs")
+    path = Path(path)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path

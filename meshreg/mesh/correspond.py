@@ -172,3 +172,15 @@ def vertex_pairs(mr: MeshRegistration) -> np.ndarray:
     h = RegularGridInterpolator((mr.result.r, mr.result.t), mr.result.h)(np.clip(mr.uv1[:k1], 0, 1))
     _, nearest = cKDTree(mr.uv2[:k2]).query(h)
     return np.c_[mr.first.vertex_map, mr.second.vertex_map[nearest]]
+
+
+def mesh_grid(vertices: np.ndarray, faces: np.ndarray, *, grid: int = DEFAULT_GRID, cleanup: bool = True,
+              weights: str = "mean-value"):
+    """One mesh, on its own, to a grid surface: clean, map to the square (corners by
+    :func:`~meshreg.mesh.harmonic.choose_corners`), resample on grid x grid nodes.
+
+    Returns the GridSurface and an info dict (cleanup report, corners, flipped and degenerate counts).
+    """
+    disk = prepare_disk(vertices, faces, cleanup=cleanup)
+    uv, info = HarmonicMap(disk, weights)(choose_corners(disk))
+    return resample_grid(disk.vertices, disk.faces, uv, grid, grid), {**info, "cleanup": disk.report}

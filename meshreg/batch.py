@@ -1,0 +1,335 @@
+"""Distance matrices for collections: every unordered pair registered once, locally or on a Dask cluster.
+
+Each surface is prepared once (read, and for meshes cleaned, mapped to the square and resampled); pair
+(i, j), i < j, registers surface i (rotated) with surface j (reparametrized): ``distance[i, j] =
+distance[j, i] = sqrt(E)`` of that registration (E is not exactly symmetric once discretized; the lower
+index is always the first surface, so reruns and clusters give the same numbers).
+
+Every finished pair is appended to a checkpoint file (JSON lines, flushed and fsynced) as it completes;
+a rerun with the same inputs and parameters skips the pairs already there, so an interrupted run (Ctrl-C,
+a lost worker, a killed machine) loses at most the pairs in flight. The final ``.npz`` is written to a
+temporary file and renamed (atomic). A pair that fails (a bad mesh) is recorded with its reason.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .grid import GridSurface, read_grid
+from .register import register
+
+CHECKPOINT_SUFFIX = ".checkpoint.jsonl"
+
+
+@dataclass
+class Prepared:
+    """A surface ready to register: its grid, or why it could not be prepared."""
+
+    name: str
+    grid: GridSurface | None
+    error: str | None = None
+
+
+def prepare_surface(item, name: str | None = None, *, resolution: int = 101, weights: str = "mean-value",
+                    cleanup: bool = True) -> Prepared:
+    """Read and prepare one surface: a GridSurface, an (M, N, 3) array, a (vertices, faces) pair, or a path to a
+    grid file or a mesh. Errors (unreadable file, not a disk, ...) are returned in ``error``, not raised."""
+    from .mesh.topology import MESH_SUFFIXES
+
+    name = name or (str(item) if isinstance(item, (str, Path)) else "surface")
+    try:
+        if isinstance(item, GridSurface):
+            return Prepared(name, item)
+        if isinstance(item, (str, Path)):
+            if Path(item).suffix.lower() not in MESH_SUFFIXES:
+                return Prepared(name, read_grid(item))
+            from .mesh.topology import load_mesh
+
+            item = load_mesh(item)
+        if isinstance(item, tuple):
+            from .mesh.correspond import mesh_grid
+
+            return Prepared(name, mesh_grid(*item, grid=resolution, weights=weights, cleanup=cleanup)[0])
+        return Prepared(name, GridSurface.from_array(item))
+    except InputError as err:
+        return Prepared(name, None, str(err))
+
+
+def register_pair(first: GridSurface, second: GridSurface, params: dict) -> dict:
+    """One pair's numbers: energy, rotation (3 x 3 list), seconds. Runs in a worker process.
+
+    BLAS is held to one thread: worker processes forked from a parent with a threaded OpenBLAS ran pairs
+    5-10x slower on a 2-core machine, and one pair per core is the parallelism that pays.
+    """
+    from threadpoolctl import threadpool_limits
+
+    tic = time.perf_counter()
+    with threadpool_limits(1):
+        result = register(first, second, **params)
+    return {"energy": result.energy, "rotation": result.rotation.tolist(), "seconds": time.perf_counter() - tic}
+
+
+@dataclass
+class DistanceMatrix:
+    """Pairwise elastic distances of a collection.
+
+    Attributes
+    ----------
+    names : list of str, length N
+    distance : ndarray (N, N)
+        sqrt(E), symmetric, zero diagonal, NaN where the pair failed.
+    energy : ndarray (N, N)
+        E (squared distance), same layout.
+    rotations : ndarray (N, N, 3, 3)
+        R of pair (i, j), i < j (surface i rotated onto j); ``rotations[j, i]`` is its transpose.
+    seconds : ndarray (N, N)
+        Registration time of each pair (wall clock in its worker), symmetric.
+    failures : dict
+        ``(i, j) -> reason`` for pairs that failed.
+    params : dict
+        The registration and preparation parameters used.
+    """
+
+    names: list
+    distance: np.ndarray
+    energy: np.ndarray
+    rotations: np.ndarray
+    seconds: np.ndarray
+    failures: dict = field(default_factory=dict)
+    params: dict = field(default_factory=dict)
+
+    def save(self, path) -> None:
+        """Write ``.npz`` atomically (temporary file in the same directory, then rename)."""
+        path = Path(path)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
+        failures = [f"{i} {j} {reason}" for (i, j), reason in sorted(self.failures.items())]
+        np.savez(tmp, distance=self.distance, energy=self.energy, files=np.array(self.names), rotations=self.rotations,
+                 seconds=self.seconds, failures=np.array(failures, dtype=str), params=json.dumps(self.params))
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path) -> "DistanceMatrix":
+        with np.load(path) as data:
+            failures = {}
+            for line in data["failures"].tolist():
+                i, j, reason = line.split(" ", 2)
+                failures[int(i), int(j)] = reason
+            return cls(data["files"].tolist(), data["distance"], data["energy"], data["rotations"], data["seconds"],
+                       failures, json.loads(str(data["params"])))
+
+
+class Checkpoint:
+    """Append-only JSON-lines record of finished pairs, tied to the inputs and parameters by a key."""
+
+    def __init__(self, path, key: str):
+        self.path = Path(path)
+        self.key = key
+        self.done: dict = {}
+        if self.path.exists():
+            lines = self.path.read_text().splitlines()
+            header = _json_or_none(lines[0]) if lines else None
+            if header is None or header.get("key") != key:
+                raise InputError(f"{self.path} is a checkpoint of another run (other inputs or parameters): "
+                                 "delete it or write the matrix elsewhere")
+            for line in lines[1:]:
+                record = _json_or_none(line)  # a line cut by a kill is skipped: that pair is redone
+                if record is not None:
+                    self.done[record["i"], record["j"]] = record
+        self._file = open(self.path, "a")
+        if not self.path.stat().st_size:
+            self._write({"key": key})
+
+    def add(self, record: dict) -> None:
+        self.done[record["i"], record["j"]] = record
+        self._write(record)
+
+    def _write(self, record: dict) -> None:
+        self._file.write(json.dumps(record) + "\n")
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def _json_or_none(line: str):
+    try:
+        return json.loads(line)
+    except json.JSONDecodeError:
+        return None
+
+
+def _run_key(names, grids, params) -> str:
+    digest = hashlib.sha256(json.dumps({"names": names, "params": params}, sort_keys=True, default=str).encode())
+    for g in grids:
+        digest.update(b"-" if g is None else np.ascontiguousarray(g.points).tobytes())
+    return digest.hexdigest()
+
+
+def distance_matrix(
+    surfaces,
+    *,
+    names=None,
+    client=None,
+    jobs: int | None = None,
+    checkpoint=None,
+    resolution: int = 101,
+    weights: str = "mean-value",
+    cleanup: bool = True,
+    progress=None,
+    **params,
+) -> DistanceMatrix:
+    """All pairwise elastic distances of a collection.
+
+    Parameters
+    ----------
+    surfaces : sequence
+        GridSurfaces, (M, N, 3) arrays, (vertices, faces) pairs, or paths of grid files or meshes.
+    names : list of str, optional
+        Labels (default: the paths, else "surface i").
+    client : dask.distributed.Client, optional
+        Run the pairs on this Dask cluster. Default: a local process pool.
+    jobs : int, optional
+        Processes of the local pool (default: the machine's cores; 1 runs in this process).
+    checkpoint : path, optional
+        JSON-lines file recording each finished pair; an existing one for the same run is resumed.
+    resolution, weights, cleanup
+        How meshes become grids (see :func:`meshreg.mesh.correspond.mesh_grid`).
+    progress : callable, optional
+        ``progress(done, total)`` after every finished pair (and once at the start).
+    **params
+        Passed to :func:`meshreg.register` for every pair (default mode "auto").
+
+    Returns
+    -------
+    DistanceMatrix
+
+    Examples
+    --------
+    >>> from meshreg.samples import sample, sine, helicoid
+    >>> grids = [sample(sine(2), 21, 21), sample(sine(2), 21, 21), sample(helicoid(1), 21, 21)]
+    >>> d = distance_matrix(grids, jobs=1)
+    >>> bool(d.distance[0, 1] < 1e-3 < d.distance[0, 2]), bool((d.distance == d.distance.T).all())
+    (True, True)
+    """
+    items = list(surfaces)
+    n = len(items)
+    if n < 2:
+        raise InputError("a distance matrix needs at least 2 surfaces")
+    if names is None:
+        names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
+    prep = {"resolution": resolution, "weights": weights, "cleanup": cleanup}
+    prepared = [prepare_surface(x, nm, **prep) for x, nm in zip(items, names)]
+    run_params = {**params, **prep}
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    store = Checkpoint(checkpoint, _run_key(names, [p.grid for p in prepared], run_params)) if checkpoint else None
+    done = dict(store.done) if store else {}
+    notify = progress or (lambda finished, total: None)
+    notify(len(done), len(pairs))
+
+    def finish(i, j, record):
+        record = {"i": i, "j": j, **record}
+        done[i, j] = record
+        if store:
+            store.add(record)
+        notify(len(done), len(pairs))
+
+    todo = []
+    for i, j in pairs:
+        if (i, j) in done:
+            continue
+        bad = [p for p in (prepared[i], prepared[j]) if p.error]
+        if bad:
+            finish(i, j, {"error": "; ".join(f"{p.name}: {p.error}" for p in bad)})
+        else:
+            todo.append((i, j))
+    try:
+        if client is not None:
+            _run_dask(client, prepared, todo, params, finish)
+        else:
+            _run_local(prepared, todo, params, finish, jobs or os.cpu_count() or 1)
+    finally:
+        if store:
+            store.close()
+    return _assemble(names, done, run_params)
+
+
+def _outcome(call) -> dict:
+    try:
+        return call()
+    except InputError as err:
+        return {"error": str(err)}
+
+
+def _run_local(prepared, todo, params, finish, jobs: int) -> None:
+    if jobs <= 1:
+        for i, j in todo:
+            finish(i, j, _outcome(lambda: register_pair(prepared[i].grid, prepared[j].grid, params)))
+        return
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        running = {pool.submit(register_pair, prepared[i].grid, prepared[j].grid, params): (i, j) for i, j in todo}
+        try:
+            while running:
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    i, j = running.pop(future)
+                    finish(i, j, _outcome(future.result))
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+
+def _run_dask(client, prepared, todo, params, finish) -> None:
+    from distributed import as_completed
+
+    grids = {k: client.scatter(prepared[k].grid) for k in {k for pair in todo for k in pair}}
+    futures = {client.submit(register_pair, grids[i], grids[j], params, pure=False): (i, j) for i, j in todo}
+    try:
+        for future in as_completed(futures):
+            i, j = futures[future]
+            finish(i, j, _outcome(future.result))
+    except BaseException:
+        client.cancel(list(futures))
+        raise
+
+
+def _assemble(names, done: dict, params: dict) -> DistanceMatrix:
+    n = len(names)
+    energy = np.full((n, n), np.nan)
+    np.fill_diagonal(energy, 0.0)
+    rotations = np.tile(np.eye(3), (n, n, 1, 1))
+    seconds = np.zeros((n, n))
+    failures = {}
+    for (i, j), record in done.items():
+        if "error" in record:
+            failures[i, j] = record["error"]
+            continue
+        energy[i, j] = energy[j, i] = record["energy"]
+        rotations[i, j] = record["rotation"]
+        rotations[j, i] = np.transpose(record["rotation"])
+        seconds[i, j] = seconds[j, i] = record["seconds"]
+    missing = [(i, j) for i in range(n) for j in range(i + 1, n) if (i, j) not in done]
+    for pair in missing:
+        failures[pair] = "not run"
+    return DistanceMatrix(list(names), np.sqrt(np.maximum(energy, 0.0)), energy, rotations, seconds, failures, params)
+
+
+def classical_mds(distance: np.ndarray, dims: int = 2) -> np.ndarray:
+    """Classical (Torgerson) multidimensional scaling: points (N, dims) whose Euclidean distances best match
+    ``distance`` (N, N) (failed pairs, NaN, are set to the largest finite distance)."""
+    d = np.where(np.isfinite(distance), distance, np.nanmax(distance))
+    n = len(d)
+    centre = np.eye(n) - 1.0 / n
+    b = -0.5 * centre @ (d**2) @ centre
+    vals, vecs = np.linalg.eigh(b)
+    top = np.argsort(vals)[::-1][:dims]
+    return vecs[:, top] * np.sqrt(np.maximum(vals[top], 0.0))

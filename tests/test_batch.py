@@ -1,0 +1,114 @@
+"""Distance matrices: local serial, local pool and a real Dask cluster agree; runs resume; failures are reported."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from meshreg.batch import CHECKPOINT_SUFFIX, Checkpoint, DistanceMatrix, distance_matrix
+from meshreg.errors import InputError
+from meshreg.samples import bump, helicoid, sample, sine, warp
+
+
+def _grids(n=21):
+    return [sample(sine(2), n, n), sample(sine(2), n, n, gamma=warp()), sample(helicoid(1), n, n), sample(bump(), n, n)]
+
+
+@pytest.fixture(scope="module")
+def serial():
+    return distance_matrix(_grids(), jobs=1)
+
+
+def test_matrix_is_a_distance_matrix(serial):
+    d = serial.distance
+    assert d.shape == (4, 4) and np.array_equal(d, d.T) and np.all(np.diag(d) == 0)
+    assert d[0, 1] < 0.01  # the same surface, reparametrized
+    assert np.all(d[np.triu_indices(4, 1)][1:] > 0.3)  # different shapes
+    assert np.allclose(serial.energy, d**2) and not serial.failures
+    r = serial.rotations[0, 2]
+    assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1) and np.allclose(serial.rotations[2, 0], r.T)
+
+
+def test_process_pool_and_dask_cluster_give_the_same_numbers(serial):
+    pooled = distance_matrix(_grids(), jobs=2)
+    np.testing.assert_allclose(pooled.distance, serial.distance, rtol=1e-9, atol=1e-12)
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as cluster:
+        with Client(cluster) as client:
+            clustered = distance_matrix(_grids(), client=client)
+    np.testing.assert_allclose(clustered.distance, serial.distance, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(clustered.rotations, serial.rotations, rtol=1e-9, atol=1e-12)
+
+
+def test_save_load_round_trip(serial, tmp_path):
+    serial.save(tmp_path / "D.npz")
+    back = DistanceMatrix.load(tmp_path / "D.npz")
+    assert back.names == serial.names and np.array_equal(back.distance, serial.distance) and back.params == serial.params
+
+
+def test_checkpoint_of_another_run_is_refused_and_cut_lines_are_redone(tmp_path):
+    path = tmp_path / "c.jsonl"
+    grids = _grids(11)[:3]
+    distance_matrix(grids, jobs=1, checkpoint=path)
+    lines = path.read_text().splitlines()
+    assert len(lines) == 4  # header + 3 pairs
+    path.write_text("\n".join(lines[:3]) + "\n" + lines[3][:20])  # the last pair's line cut by a kill
+    seen = []
+    again = distance_matrix(grids, jobs=1, checkpoint=path, progress=lambda done, total: seen.append(done))
+    assert seen[0] == 2 and seen[-1] == 3 and not again.failures
+    with pytest.raises(InputError, match="another run"):
+        Checkpoint(path, key="something else")
+
+
+def _write_collection(tmp_path, n=21):
+    files = []
+    for k, g in enumerate(_grids(n) + [sample(sine(3), n, n)]):
+        files.append(tmp_path / f"s{k}.npy")
+        np.save(files[-1], g.points)
+    return files
+
+
+def test_killed_run_resumes_where_it_stopped(tmp_path):
+    files = _write_collection(tmp_path, 21)
+    out = tmp_path / "D.npz"
+    checkpoint = tmp_path / ("D.npz" + CHECKPOINT_SUFFIX)
+    cmd = [sys.executable, "-m", "meshreg.cli", "matrix", *map(str, files), "-o", str(out), "--jobs", "1", "-q"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while time.time() < deadline and (not checkpoint.exists() or len(checkpoint.read_text().splitlines()) < 4):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)  # a killed machine: no clean-up at all
+    proc.wait()
+    done_before = [json.loads(x) for x in checkpoint.read_text().splitlines()[1:] if x.endswith("}")]
+    assert 3 <= len(done_before) < 10 and not out.exists()
+    resumed = subprocess.run(cmd, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    result = DistanceMatrix.load(out)
+    for record in done_before:  # the checkpointed pairs were kept, not recomputed
+        assert result.energy[record["i"], record["j"]] == record["energy"]
+        assert result.seconds[record["i"], record["j"]] == record["seconds"]
+    fresh = distance_matrix(files, jobs=1)
+    np.testing.assert_allclose(result.distance, fresh.distance, rtol=1e-9, atol=1e-12)
+    assert not checkpoint.exists()
+
+
+def test_cli_reports_failed_pairs_and_plots(tmp_path):
+    files = _write_collection(tmp_path, 11)[:3]
+    trimesh.creation.icosphere().export(tmp_path / "closed.stl")
+    out = tmp_path / "m" / "D.npz"
+    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "matrix", *map(str, files), str(tmp_path / "closed.stl"),
+                           "-o", str(out), "--jobs", "2", "--plot", "-q"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count("failed pair") == 3 and "closed" in proc.stdout
+    result = DistanceMatrix.load(out)
+    assert np.isnan(result.distance[3, 0]) and np.isfinite(result.distance[:3, :3]).all()
+    assert len(result.failures) == 3 and out.with_suffix(".png").stat().st_size > 0
+    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "matrix", str(files[0]), str(files[1]), "-o", str(files[0])],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
