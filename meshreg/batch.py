@@ -264,10 +264,13 @@ def distance_matrix(
 
 
 def _outcome(call) -> dict:
+    """The pair's record, or its error: one failing pair must not stop the run (KeyboardInterrupt does)."""
     try:
         return call()
     except InputError as err:
         return {"error": str(err)}
+    except Exception as err:  # noqa: BLE001 - any failure of one pair is reported, with its type
+        return {"error": f"{type(err).__name__}: {err}"}
 
 
 def _run_local(prepared, todo, params, finish, jobs: int) -> None:

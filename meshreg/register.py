@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 
 from .descent import DescentParams, descend, gauss_newton
-from .diffeo import compose, enforce_boundary
+from .diffeo import compose, enforce_boundary, is_valid, jacobian_determinant
 from .dp import DEFAULT_DP_ROUNDS, DEFAULT_WINDOW, dp_surface_min
 from .fields import bspline_basis, node_basis, riseth_basis
 from .errors import InputError
@@ -54,6 +54,8 @@ REFINEMENTS = ("nodes", "none")
 # coarse level having about DP_STRIP_NODES nodes
 DP_FULL_NODES = 200
 DP_STRIP_NODES = 50
+START_BLENDS = (0.0, 1e-3, 1e-2, 0.1, 0.5)  # blends toward the identity tried for an invalid descent start
+START_MIN_DET = 1e-3  # smallest det J (per cell; its mean is 1) of a descent start
 # a symmetry of the square other than the identity must beat it by this fraction (coarse DP energy)
 SYMMETRY_MARGIN = 0.05
 # coarse-to-fine refinement: cubic B-spline fields on 12 and 24 knots per axis, then every node
@@ -276,7 +278,7 @@ def register(
         step = descend if solver == "gradient" else gauss_newton
         basis = riseth_basis(descent.basis, work.r, work.t)
         stage = lambda o, R, hh, p, cb: step(o, R, hh, p, basis, cb)  # noqa: E731
-        h = h[np.ix_(ir, it)]
+        h = _valid_start(objective, h)[np.ix_(ir, it)]
         rotation, h = _alternate(work, rotation, h, stage, descent, max_rounds, round_tol, work_history, track("gd", work_history), notify)
         timings["gd"] = time.perf_counter() - tic
         if refine == "nodes":
@@ -365,6 +367,19 @@ def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: boo
     return result.rotation, h, objective.energy(result.rotation, h)
 
 
+def _valid_start(objective: Objective, h: np.ndarray) -> np.ndarray:
+    """h itself when every cell keeps det J >= START_MIN_DET, else the least blend (1 - eps) h + eps id that does.
+
+    The descent needs an orientation-preserving start: a DP path that is flat in places (gamma' = 0) gives
+    cells of zero area, where no step can be accepted.
+    """
+    for eps in START_BLENDS:
+        blended = (1.0 - eps) * h + eps * objective.identity
+        if is_valid(blended) and jacobian_determinant(blended, objective.r, objective.t).min() >= START_MIN_DET:
+            return blended
+    return objective.identity.copy()
+
+
 def _dp_stage(objective: Objective, window: int, dp_rounds: int, both: bool, rotation=None):
     """DP-surface-min along r (the paper); with ``both``, alternate passes along t and r while E drops.
 
@@ -374,6 +389,8 @@ def _dp_stage(objective: Objective, window: int, dp_rounds: int, both: bool, rot
     if both:
         for p in range(2 * dp_rounds):
             new_rotation, new_h, new_energy = _dp_along(objective, rotation, h, window, dp_rounds, along_t=p % 2 == 0)
+            if not is_valid(new_h):  # composing the two directions' steps can collapse cells: keep the last valid h
+                break
             if new_energy >= energy * (1 - DEFAULT_ROUND_TOL):
                 if new_energy < energy:
                     rotation, h, energy = new_rotation, new_h, new_energy

@@ -16,6 +16,9 @@ from __future__ import annotations
 import numpy as np
 
 _TINY = 1e-300
+# q = v / sqrt|v| has a derivative ~ |v|^(-1/2), unbounded on collapsed cells (a DP map that is flat in
+# places, a crease): derivatives use |v| no smaller than this fraction of the median cell's |v|.
+COLLAPSED = 1e-6
 
 
 def cell_weights(r: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -83,6 +86,11 @@ def _cells(points: np.ndarray, weights: np.ndarray):
     return d1, d2, w, v, norm, v / np.sqrt(norm)
 
 
+def _derivative_scale(norm: np.ndarray) -> np.ndarray:
+    """|v| for the derivatives of q: floored at ``COLLAPSED`` times the median cell (see there)."""
+    return np.maximum(norm, COLLAPSED * np.median(norm))
+
+
 def energy_gradient_points(target: np.ndarray, points: np.ndarray, weights: np.ndarray) -> tuple[float, np.ndarray]:
     """E(points) = sum w |target - q(points)|^2 and its gradient with respect to the points.
 
@@ -105,7 +113,7 @@ def energy_gradient_points(target: np.ndarray, points: np.ndarray, weights: np.n
     e = float(np.sum(w * diff * diff))
     g_q = -2.0 * w * diff
     vhat = v / norm
-    g_v = (g_q - 0.5 * np.sum(g_q * vhat, axis=-1, keepdims=True) * vhat) / np.sqrt(norm)
+    g_v = (g_q - 0.5 * np.sum(g_q * vhat, axis=-1, keepdims=True) * vhat) / np.sqrt(_derivative_scale(norm))
     g_n = g_v / w
     g_d1 = 0.5 * np.cross(d2, g_n)
     g_d2 = 0.5 * np.cross(g_n, d1)
@@ -142,7 +150,7 @@ def shape_function_jacobians(points: np.ndarray, weights: np.ndarray) -> tuple[n
     """
     d1, d2, w, v, norm, q = _cells(points, weights)
     vhat = v / norm
-    dq_dn = (np.eye(3) - 0.5 * vhat[..., :, None] * vhat[..., None, :]) / (np.sqrt(norm) * w)[..., None]
+    dq_dn = (np.eye(3) - 0.5 * vhat[..., :, None] * vhat[..., None, :]) / (np.sqrt(_derivative_scale(norm)) * w)[..., None]
     s1 = 0.5 * dq_dn @ _skew(d1)
     s2 = 0.5 * dq_dn @ _skew(d2)
     return q, np.stack([s2, -s1, s1, -s2])

@@ -60,7 +60,7 @@ def test_energy_never_increases_and_reported_energy_is_honest(mode):
     hist = result.energy_history
     assert np.all(np.diff(hist) <= 1e-12 * hist[0])
     assert hist[-1] == pytest.approx(result.energy, rel=1e-9)
-    assert is_valid(result.h)
+    assert np.all((result.h >= 0) & (result.h <= 1))  # h includes the symmetry found (here a flip): is_valid does not apply
     fresh = Objective(pair.first, pair.second).energy(result.rotation, result.h)
     assert fresh == pytest.approx(result.energy, rel=1e-12)
     assert exact_energy(pair.first, pair.second, pair.exact_second, result) == pytest.approx(result.energy, rel=2e-3)
@@ -111,3 +111,14 @@ def test_bad_parameters():
         meshreg.register(s, s, window=0)
     with pytest.raises(InputError, match="unknown parameter"):
         meshreg.register(s, s, tolerance=3)
+
+
+def test_collapsed_dp_start_is_repaired_and_descent_improves_on_dp():
+    # found by the distance-matrix benchmark: alternating DP passes left cells of zero area, the Gauss-Newton
+    # Jacobian overflowed (q' ~ |v|^-1/2) and the pair crashed deep inside numpy
+    from meshreg.samples import sample, terrain, warp
+
+    first, second = sample(terrain(1), 61, 61, gamma=warp(0.05)), sample(terrain(2), 61, 61)
+    result = meshreg.register(first, second)
+    assert np.isfinite(result.energy) and result.energy < 0.9 * result.energy_dp
+    assert np.all((result.h >= 0) & (result.h <= 1))  # h includes the symmetry found (here a flip): is_valid does not apply
