@@ -175,3 +175,25 @@ def test_cli_mesh_options(tmp_path):
     assert "filled 1 hole" in proc.stdout
     with np.load(tmp_path / "o3" / "result.npz") as data:
         assert data["h"].shape == (21, 21, 2)
+
+
+def test_obj_with_texture_seams_keeps_its_vertices(tmp_path):
+    # textured scans are OBJ files whose faces index separate texture coordinates: the mesh must not fall apart
+    v, f, _ = random_disk_mesh(bump(), 200, seed=9)
+    lines = [f"v {x} {y} {z}" for x, y, z in v] + [f"vt {a} {b}" for a, b in np.random.default_rng(0).random((3 * len(f), 2))]
+    lines += [f"f {a + 1}/{3 * k + 1} {b + 1}/{3 * k + 2} {c + 1}/{3 * k + 3}" for k, (a, b, c) in enumerate(f)]
+    (tmp_path / "scan.obj").write_text("\n".join(lines) + "\n")
+    v2, f2 = load_mesh(tmp_path / "scan.obj")
+    assert np.allclose(v2, v) and np.array_equal(f2, f)
+    prepare_disk(v2, f2, cleanup=False)
+
+
+def test_inconsistent_winding_is_repaired():
+    v, f, _ = random_disk_mesh(bump(), 300, seed=10)
+    bad = f.copy()
+    bad[::7] = bad[::7, ::-1]
+    with pytest.raises(InputError, match="oriented against"):
+        prepare_disk(v, bad, cleanup=False)
+    disk = prepare_disk(v, bad)
+    assert any("reoriented" in line for line in disk.report)
+    assert np.array_equal(disk.faces, prepare_disk(v, f).faces)

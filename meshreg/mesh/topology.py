@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from ..errors import InputError
 
@@ -17,19 +17,23 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (n, 3) and faces (m, 3) of a mesh file, vertex order kept (trimesh, ``process=False``).
 
-    STL files, which repeat each triangle's corners, have coincident vertices welded.
+    OBJ files are read without splitting vertices at texture or normal seams (a textured scan would
+    otherwise fall apart into pieces) and in file order. STL and glTF/GLB files, which repeat vertices
+    along seams or per triangle, have coincident vertices welded.
     """
     import trimesh
 
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    options = {"merge_tex": True, "merge_norm": True, "maintain_order": True} if suffix == ".obj" else {}
     try:
-        mesh = trimesh.load(path, process=False, force="mesh")
+        mesh = trimesh.load(path, process=False, force="mesh", **options)
     except Exception as err:  # trimesh raises many types on bad files
         raise InputError(f"{path}: cannot read mesh ({err})") from None
-    if path.suffix.lower() == ".stl" and len(getattr(mesh, "faces", [])):
-        mesh.merge_vertices()  # STL stores every triangle's corners separately: weld them
+    if suffix in (".stl", ".glb", ".gltf") and len(getattr(mesh, "faces", [])):
+        mesh.merge_vertices()  # these formats repeat vertices along seams or per triangle: weld them
     vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=float)
     faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
     if len(vertices) == 0 or len(faces) == 0:
@@ -122,6 +126,12 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     _, uniq, _, counts = _edges(f)
     if np.any(counts > 2):
         raise InputError(f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first")
+    flipped = _orientation_flips(f)
+    if flipped.any():
+        if not cleanup:
+            raise InputError(f"{int(flipped.sum())} triangles are oriented against their neighbours: fix the winding or allow cleanup")
+        f = np.where(flipped[:, None], f[:, ::-1], f)
+        report.append(f"reoriented {int(flipped.sum())} triangles to agree with their neighbours")
     for _ in range(10):
         starts, uses = np.unique(_boundary_edges(f)[:, 0], return_counts=True)
         pinched = starts[uses > 1]  # the boundary passes twice through these vertices
@@ -193,6 +203,40 @@ def _fill_holes(v, f, loops):
         new_f.append(np.c_[np.roll(loop, -1), loop, np.full(len(loop), n)])
         n += 1
     return np.vstack(new_v), np.vstack(new_f), len(loops) - 1
+
+
+def _orientation_flips(faces) -> np.ndarray:
+    """Which triangles (m,) to reverse so that every interior edge is crossed in opposite directions by its
+    two triangles (a consistent winding; per component, the orientation of most triangles wins)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    m = len(faces)
+    key = np.minimum(e[:, 0], e[:, 1]) * (int(faces.max()) + 1) + np.maximum(e[:, 0], e[:, 1])
+    order = np.argsort(key, kind="stable")
+    pair = np.flatnonzero(key[order][1:] == key[order][:-1])
+    a, b = order[pair], order[pair + 1]
+    same = e[a, 0] == e[b, 0]  # both triangles run the shared edge the same way: one must flip
+    if not same.any():
+        return np.zeros(m, dtype=bool)
+    fa, fb = a % m, b % m
+    graph = sp.csr_matrix((np.ones(len(fa)), (fa, fb)), shape=(m, m))
+    parity = np.full(m, -1)
+    same_lookup = dict(zip(zip(np.minimum(fa, fb).tolist(), np.maximum(fa, fb).tolist()), same.tolist()))
+    for root in range(m):
+        if parity[root] >= 0:
+            continue
+        nodes, parents = breadth_first_order(graph, root, directed=False)
+        parity[root] = 0
+        for node in nodes[1:]:
+            p = parents[node]
+            parity[node] = parity[p] ^ same_lookup[min(p, node), max(p, node)]
+        component = nodes
+        if parity[component].sum() * 2 > len(component):
+            parity[component] ^= 1
+    flips = parity.astype(bool)
+    check = flips[fa] ^ flips[fb]
+    if np.any(check != same):
+        raise InputError("the mesh is not orientable (a Moebius-like band): it cannot be mapped to a square")
+    return flips
 
 
 def _boundary_edges(faces):
