@@ -91,7 +91,7 @@ def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bo
     """Mesh pipeline: register (vertices, faces) pairs and write coloured meshes, result and figures."""
     from tqdm import tqdm
 
-    from .mesh.correspond import register_meshes
+    from .mesh.correspond import register_meshes, similarity_transform
     from .mesh.export import UNMATCHED, on_input_vertices, plot_meshes, registered_mesh, write_ply
     from .objective import Objective
     from .viz import plot_registration
@@ -109,7 +109,8 @@ def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bo
     uv1 = on_input_vertices(mr.uv1, mr.first.vertex_map, len(v1), [np.nan, np.nan])
     uv2 = on_input_vertices(mr.uv2, mr.second.vertex_map, len(v2), [np.nan, np.nan])
     mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)
-    plot_meshes(out / "meshes.png", v1, f1, c1, v2, f2, c2, title=f"E = {mr.result.energy:.3g}: corresponding points share a colour")
+    plot_meshes(out / "meshes.png", v1, f1, c1, v2, f2, c2, title=f"E = {mr.result.energy:.3g}: corresponding points share a colour",
+                second_to_first=np.linalg.inv(similarity_transform(mr)))
     plot_registration(mr.result.apply(objective.first.points), objective.points(mr.result.h), mr.result.energy_history,
                       out / FIGURE_FILE, title=f"E = {mr.result.energy:.3g}")
     for name, info in mr.info.items():

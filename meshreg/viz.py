@@ -17,7 +17,7 @@ def _boundary(points: np.ndarray) -> np.ndarray:
 
 
 def plot_registration(first_rotated: np.ndarray, second_registered: np.ndarray, history, path, title: str = "") -> Path:
-    """Write a PNG: boundaries of R c1 (solid blue) and c2 o h (dashed red), and E per step.
+    """Write a PNG: boundaries of R c1 (solid blue) and c2 o h (dashed red), each centred, and E per step.
 
     Parameters
     ----------
@@ -33,11 +33,13 @@ def plot_registration(first_rotated: np.ndarray, second_registered: np.ndarray, 
     fig = plt.figure(figsize=(11, 4.8))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     for pts, style, label in ((first_rotated, "b-", "R c1"), (second_registered, "r--", "c2 o h")):
+        pts = pts - pts.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay the two
         loop = _boundary(pts)
         ax.plot(loop[:, 0], loop[:, 1], loop[:, 2], style, label=label)
         for j in np.linspace(0, pts.shape[1] - 1, 5).astype(int)[1:-1]:
             ax.plot(*pts[:, j].T, style, lw=0.6, alpha=0.6)
     ax.legend(loc="upper left")
+    ax.set_box_aspect(np.ptp(second_registered.reshape(-1, 3), axis=0) + 1e-9)
     ax.set_title(title or "boundaries after registration")
     ax2 = fig.add_subplot(1, 2, 2)
     ax2.semilogy(np.maximum(np.asarray(history, dtype=float), 1e-16), "k.-")

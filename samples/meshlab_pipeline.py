@@ -12,19 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pymeshlab
-from scipy.spatial.transform import Rotation
 
-from meshreg.mesh.samples import face_scan_crop, remeshed_range_scan
+from meshreg.mesh.samples import face_scan_pair
 from meshreg.plugins import meshlab
 
 
 def main(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    v, f = face_scan_crop(50.0)
-    used = np.unique(f)
-    v, f = v[used], np.searchsorted(used, f)
-    rotation = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
-    v2, f2, _ = remeshed_range_scan(v, f, 20000, seed=1, rotation=rotation, scale=0.01)
+    (v, f), (v2, f2, _), _ = face_scan_pair()
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v, face_matrix=f), mesh_name="face000 crop (raw)")
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v2, face_matrix=f2), mesh_name="remeshed rotated copy (raw)")

@@ -46,13 +46,10 @@ def test_open3d_register_and_parametrize():
 
 def test_meshlab_apply_prepares_a_raw_scan_crop():
     import pymeshlab
-    from meshreg.mesh.samples import face_scan_crop, remeshed_range_scan
+    from meshreg.mesh.samples import face_scan_pair
     from meshreg.plugins import meshlab
 
-    v1, f1 = face_scan_crop(50.0)
-    used = np.unique(f1)
-    v1, f1 = v1[used], np.searchsorted(used, f1)
-    v2, f2, _ = remeshed_range_scan(v1, f1, 12000, seed=2, rotation=ROT, scale=0.01)
+    (v1, f1), (v2, f2, _), _ = face_scan_pair(n_points=12000, seed=2, rotation=ROT)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v1, face_matrix=f1), mesh_name="scan")
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v2, face_matrix=f2), mesh_name="copy")

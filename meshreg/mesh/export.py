@@ -51,19 +51,37 @@ def registered_mesh(mr: MeshRegistration, objective):
     return pts.reshape(-1, 3), grid_faces(len(res.r), len(res.t)), uv_colors(uv)
 
 
-def plot_meshes(path, v1, f1, c1, v2, f2, c2, title: str = "") -> None:
-    """PNG: the two meshes side by side, coloured by correspondence."""
+def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """A rotation (3, 3) taking the mesh's mean (area-weighted) normal to +z: the camera then faces the surface."""
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]).sum(axis=0)
+    z = n / max(np.linalg.norm(n), 1e-300)
+    x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z])
+
+
+def plot_meshes(path, v1, f1, c1, v2, f2, c2, title: str = "", second_to_first: np.ndarray | None = None) -> None:
+    """PNG: the two meshes side by side, coloured by correspondence, both seen from the first's mean normal.
+
+    ``second_to_first`` (4, 4), the similarity from the second's frame to the first's, puts the second
+    mesh in the first's pose so that the two pictures can be compared point by point.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if second_to_first is not None:
+        v2 = v2 @ second_to_first[:3, :3].T + second_to_first[:3, 3]
+    view = _view_rotation(v1, f1)
     fig = plt.figure(figsize=(11, 5))
     for k, (v, f, c, name) in enumerate(((v1, f1, c1, "first"), (v2, f2, c2, "second"))):
         ax = fig.add_subplot(1, 2, k + 1, projection="3d")
-        ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=f, color="w", linewidth=0, shade=False).set_facecolor(c[f].mean(1))
-        ax.set_title(f"{name} mesh ({len(v)} vertices)")
-        ax.set_box_aspect(np.ptp(v, axis=0) + 1e-9)
+        p = (v - v.mean(axis=0)) @ view.T
+        ax.plot_trisurf(p[:, 0], p[:, 1], p[:, 2], triangles=f, color="w", linewidth=0, shade=False).set_facecolor(c[f].mean(1))
+        ax.set_title(f"{name} mesh ({len(v)} vertices)" + (", in the first's pose" if k and second_to_first is not None else ""))
+        ax.set_box_aspect(np.ptp(p, axis=0) + 1e-9)
+        ax.view_init(elev=65, azim=-90)
         ax.set_axis_off()
     fig.suptitle(title or "corresponding points share a colour")
     fig.tight_layout()

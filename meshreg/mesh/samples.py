@@ -109,3 +109,16 @@ def demo_pair():
     first = random_disk_mesh(surface, 2500, seed=1)
     second = random_disk_mesh(surface, 4000, seed=2, rotation=Rotation.from_euler("xyz", [30, -20, 75], degrees=True).as_matrix(), scale=2.5)
     return first, second
+
+
+FACE_ROTATION = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
+
+
+def face_scan_pair(radius: float = 50.0, n_points: int = 20000, seed: int = 1, rotation=FACE_ROTATION, scale: float = 0.01):
+    """Two meshes of one real surface: the raw face-scan crop (unused vertices dropped) and a re-triangulated,
+    rotated, scaled copy. Returns (vertices, faces), (vertices, faces, xy) of the copy (see
+    :func:`remeshed_range_scan`) and the true rotation."""
+    v, f = face_scan_crop(radius)
+    used = np.unique(f)
+    v, f = v[used], np.searchsorted(used, f)
+    return (v, f), remeshed_range_scan(v, f, n_points, seed, rotation=rotation, scale=scale), rotation
