@@ -37,12 +37,15 @@ class Prepared:
     name: str
     grid: GridSurface | None
     error: str | None = None
+    placements: list = field(default_factory=list)  # a round-boundary mesh: its grids for other corner placements
 
 
 def prepare_surface(item, name: str | None = None, *, resolution: int = 101, weights: str = "mean-value",
-                    cleanup: bool = True) -> Prepared:
+                    cleanup: bool = True, corner_search: int = 8) -> Prepared:
     """Read and prepare one surface: a GridSurface, an (M, N, 3) array, a (vertices, faces) pair, or a path to a
-    grid file or a mesh. Errors (unreadable file, not a disk, ...) are returned in ``error``, not raised."""
+    grid file or a mesh (see :func:`meshreg.mesh.correspond.mesh_grids`: a mesh without four clear corners
+    keeps its grids for ``corner_search`` corner placements). Errors (unreadable file, not a disk, ...) are
+    returned in ``error``, not raised."""
     from .mesh.topology import MESH_SUFFIXES
 
     name = name or (str(item) if isinstance(item, (str, Path)) else "surface")
@@ -56,16 +59,19 @@ def prepare_surface(item, name: str | None = None, *, resolution: int = 101, wei
 
             item = load_mesh(item)
         if isinstance(item, tuple):
-            from .mesh.correspond import mesh_grid
+            from .mesh.correspond import mesh_grids
 
-            return Prepared(name, mesh_grid(*item, grid=resolution, weights=weights, cleanup=cleanup)[0])
+            grids, _ = mesh_grids(*item, grid=resolution, weights=weights, cleanup=cleanup, corner_search=corner_search)
+            return Prepared(name, grids[0], placements=grids[1:])
         return Prepared(name, GridSurface.from_array(item))
     except InputError as err:
         return Prepared(name, None, str(err))
 
 
-def register_pair(first: GridSurface, second: GridSurface, params: dict) -> dict:
-    """One pair's numbers: energy, rotation (3 x 3 list), seconds. Runs in a worker process.
+def register_pair(first: GridSurface, second: GridSurface | list, params: dict) -> dict:
+    """One pair's numbers: energy, rotation (3 x 3 list), seconds (and the chosen corner placement when
+    ``second`` is a list of a round-boundary mesh's placements, ranked as in ``meshreg register``). Runs in
+    a worker process.
 
     BLAS is held to one thread: worker processes forked from a parent with a threaded OpenBLAS ran pairs
     5-10x slower on a 2-core machine, and one pair per core is the parallelism that pays.
@@ -73,9 +79,19 @@ def register_pair(first: GridSurface, second: GridSurface, params: dict) -> dict
     from threadpoolctl import threadpool_limits
 
     tic = time.perf_counter()
+    record = {}
     with threadpool_limits(1):
+        if isinstance(second, list):
+            from .mesh.correspond import CORNER_SEARCH_GRID, placement_energy
+            from .search import resample
+
+            n = CORNER_SEARCH_GRID
+            coarse = resample(first.scaled(), n, n)
+            ranks = [placement_energy(coarse, resample(g.scaled(), n, n)) for g in second]
+            record["placement"] = int(np.argmin(ranks))
+            second = second[record["placement"]]
         result = register(first, second, **params)
-    return {"energy": result.energy, "rotation": result.rotation.tolist(), "seconds": time.perf_counter() - tic}
+    return {"energy": result.energy, "rotation": result.rotation.tolist(), "seconds": time.perf_counter() - tic, **record}
 
 
 @dataclass
@@ -185,6 +201,7 @@ def distance_matrix(
     resolution: int = 101,
     weights: str = "mean-value",
     cleanup: bool = True,
+    corner_search: int = 8,
     progress=None,
     **params,
 ) -> DistanceMatrix:
@@ -202,8 +219,8 @@ def distance_matrix(
         Processes of the local pool (default: the machine's cores; 1 runs in this process).
     checkpoint : path, optional
         JSON-lines file recording each finished pair; an existing one for the same run is resumed.
-    resolution, weights, cleanup
-        How meshes become grids (see :func:`meshreg.mesh.correspond.mesh_grid`).
+    resolution, weights, cleanup, corner_search
+        How meshes become grids (see :func:`meshreg.mesh.correspond.mesh_grids`).
     progress : callable, optional
         ``progress(done, total)`` after every finished pair (and once at the start).
     **params
@@ -227,7 +244,7 @@ def distance_matrix(
         raise InputError("a distance matrix needs at least 2 surfaces")
     if names is None:
         names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
-    prep = {"resolution": resolution, "weights": weights, "cleanup": cleanup}
+    prep = {"resolution": resolution, "weights": weights, "cleanup": cleanup, "corner_search": corner_search}
     prepared = [prepare_surface(x, nm, **prep) for x, nm in zip(items, names)]
     run_params = {**params, **prep}
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
@@ -273,13 +290,18 @@ def _outcome(call) -> dict:
         return {"error": f"{type(err).__name__}: {err}"}
 
 
+def _seconds(p: Prepared):
+    """What a surface offers as the second of a pair: its grid, or all its corner placements."""
+    return [p.grid, *p.placements] if p.placements else p.grid
+
+
 def _run_local(prepared, todo, params, finish, jobs: int) -> None:
     if jobs <= 1:
         for i, j in todo:
-            finish(i, j, _outcome(lambda: register_pair(prepared[i].grid, prepared[j].grid, params)))
+            finish(i, j, _outcome(lambda: register_pair(prepared[i].grid, _seconds(prepared[j]), params)))
         return
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        running = {pool.submit(register_pair, prepared[i].grid, prepared[j].grid, params): (i, j) for i, j in todo}
+        running = {pool.submit(register_pair, prepared[i].grid, _seconds(prepared[j]), params): (i, j) for i, j in todo}
         try:
             while running:
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -294,8 +316,10 @@ def _run_local(prepared, todo, params, finish, jobs: int) -> None:
 def _run_dask(client, prepared, todo, params, finish) -> None:
     from distributed import as_completed
 
-    grids = {k: client.scatter(prepared[k].grid) for k in {k for pair in todo for k in pair}}
-    futures = {client.submit(register_pair, grids[i], grids[j], params, pure=False): (i, j) for i, j in todo}
+    used = {k for pair in todo for k in pair}
+    firsts = {k: client.scatter(prepared[k].grid) for k in used}
+    seconds = {k: client.scatter(_seconds(prepared[k])) for k in used}
+    futures = {client.submit(register_pair, firsts[i], seconds[j], params, pure=False): (i, j) for i, j in todo}
     try:
         for future in as_completed(futures):
             i, j = futures[future]

@@ -112,3 +112,12 @@ def test_cli_reports_failed_pairs_and_plots(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "matrix", str(files[0]), str(files[1]), "-o", str(files[0])],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
+
+
+def test_meshes_and_grids_mixed_with_round_boundaries(tmp_path):
+    from meshreg.mesh.samples import face_scan_pair
+
+    (v1, f1), (v2, f2, _), _ = face_scan_pair(n_points=15000)
+    d = distance_matrix([(v1, f1), (v2, f2), sample(bump(), 41, 41)], jobs=1, resolution=41)
+    assert d.energy[0, 1] <= 0.02  # the scan and its rotated re-triangulated copy: the corner search matters
+    assert d.distance[0, 2] > 3 * d.distance[0, 1] and not d.failures

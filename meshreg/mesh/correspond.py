@@ -64,11 +64,22 @@ def disk_ids(disk: DiskMesh, ids) -> np.ndarray:
     return at
 
 
+def placement_starts(disk: DiskMesh, trials: int) -> np.ndarray:
+    """Arc-length fractions (trials,) of the trial corner placements of a disk: quarter arc lengths from
+    ``trials`` starts spaced by 1/(4 trials) of its boundary, the first at the point where
+    :func:`~meshreg.mesh.harmonic.choose_corners` would start (a quarter turn is a symmetry of the square)."""
+    return arc_fraction(disk, int(choose_corners(disk)[0])) + 0.25 / trials * np.arange(trials)
+
+
+def placement_energy(coarse1, coarse2) -> float:
+    """Rank of a corner placement: the best coarse DP energy over the square's symmetries and rotations."""
+    return best_start(coarse1, coarse2)[0].energy
+
+
 def search_corners(first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, trials: int = CORNER_SEARCH) -> tuple[np.ndarray, list]:
-    """Corners of the second mesh that best match the first's: quarter arc lengths from ``trials`` starts
-    spaced by 1/(4 trials) of its boundary (a quarter turn is a symmetry of the square, which the ranking
-    tries too), then one halving step around the best, ranked by the coarse DP of
-    :func:`meshreg.search.best_start` on 21 x 21 grids.
+    """Corners of the second mesh that best match the first's: the ``trials`` placements of
+    :func:`placement_starts`, then one halving step around the best, ranked by :func:`placement_energy`
+    on 21 x 21 grids.
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
     different places, and no reparametrization that keeps the corners can undo that. This finds them.
@@ -78,16 +89,15 @@ def search_corners(first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap
     n = CORNER_SEARCH_GRID
     disk1, disk2 = first.disk, second.disk
     coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n)
-    base = arc_fraction(disk2, int(choose_corners(disk2)[0]))
 
     def energy(start):
         uv = second(quarter_corners(disk2, start))[0]
-        return best_start(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n))[0].energy
+        return placement_energy(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n))
 
-    step = 0.25 / trials
-    tried = [(base + k * step, energy(base + k * step)) for k in range(trials)]
+    starts = placement_starts(disk2, trials)
+    tried = [(start, energy(start)) for start in starts]
     best = min(tried, key=lambda x: x[1])[0]
-    tried += [(best + d, energy(best + d)) for d in (-0.5 * step, 0.5 * step)]
+    tried += [(best + d, energy(best + d)) for d in (-0.125 / trials, 0.125 / trials)]
     best = min(tried, key=lambda x: x[1])[0]
     return quarter_corners(disk2, best % 1.0), tried
 
@@ -174,13 +184,23 @@ def vertex_pairs(mr: MeshRegistration) -> np.ndarray:
     return np.c_[mr.first.vertex_map, mr.second.vertex_map[nearest]]
 
 
-def mesh_grid(vertices: np.ndarray, faces: np.ndarray, *, grid: int = DEFAULT_GRID, cleanup: bool = True,
-              weights: str = "mean-value"):
-    """One mesh, on its own, to a grid surface: clean, map to the square (corners by
-    :func:`~meshreg.mesh.harmonic.choose_corners`), resample on grid x grid nodes.
+def mesh_grids(vertices: np.ndarray, faces: np.ndarray, *, grid: int = DEFAULT_GRID, cleanup: bool = True,
+               weights: str = "mean-value", corner_search: int = CORNER_SEARCH):
+    """One mesh, on its own, to grid surfaces: clean, map to the square, resample on grid x grid nodes.
 
-    Returns the GridSurface and an info dict (cleanup report, corners, flipped and degenerate counts).
+    With four clear corners (or ``corner_search=0``), one grid (corners by
+    :func:`~meshreg.mesh.harmonic.choose_corners`); else one grid per trial corner placement of
+    :func:`placement_starts` (one LU serves them all), the first of which is the mesh's own placement when
+    it is the first surface of a pair; a pair ranks the second's placements by :func:`placement_energy`.
+
+    Returns the list of GridSurfaces and an info dict (cleanup report, corners, flipped and degenerate counts).
     """
     disk = prepare_disk(vertices, faces, cleanup=cleanup)
-    uv, info = HarmonicMap(disk, weights)(choose_corners(disk))
-    return resample_grid(disk.vertices, disk.faces, uv, grid, grid), {**info, "cleanup": disk.report}
+    hmap = HarmonicMap(disk, weights)
+    if corner_search > 0 and not has_sharp_corners(disk):
+        placements = [quarter_corners(disk, start % 1.0) for start in placement_starts(disk, corner_search)]
+    else:
+        placements = [choose_corners(disk)]
+    maps = [hmap(corners) for corners in placements]
+    grids = [resample_grid(disk.vertices, disk.faces, uv, grid, grid) for uv, _ in maps]
+    return grids, {**maps[0][1], "cleanup": disk.report}
