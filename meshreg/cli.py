@@ -92,22 +92,22 @@ def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bo
     from tqdm import tqdm
 
     from .mesh.correspond import register_meshes, similarity_transform
-    from .mesh.export import UNMATCHED, on_input_vertices, plot_meshes, registered_mesh, write_ply
+    from .mesh.export import UNMATCHED, plot_meshes, registered_mesh, write_ply
     from .objective import Objective
     from .viz import plot_registration
 
     with tqdm(desc="registering", unit=" steps", disable=quiet, leave=False) as bar:
         mr = register_meshes(first, second, callback=_progress_callback(bar), **params)
     (v1, f1), (v2, f2) = first, second
-    c1 = on_input_vertices(mr.colors1, mr.first.vertex_map, len(v1), UNMATCHED)
-    c2 = on_input_vertices(mr.colors2, mr.second.vertex_map, len(v2), UNMATCHED)
+    c1 = mr.first.to_input(mr.colors1, len(v1), UNMATCHED)
+    c2 = mr.second.to_input(mr.colors2, len(v2), UNMATCHED)
     write_ply(out / "first.ply", v1, f1, c1)
     write_ply(out / "second.ply", v2, f2, c2)
     objective = Objective(*mr.grids)
     reg_v, reg_f, reg_c = registered_mesh(mr, objective)
     write_ply(out / "registered.ply", reg_v, reg_f, reg_c)
-    uv1 = on_input_vertices(mr.uv1, mr.first.vertex_map, len(v1), [np.nan, np.nan])
-    uv2 = on_input_vertices(mr.uv2, mr.second.vertex_map, len(v2), [np.nan, np.nan])
+    uv1 = mr.first.to_input(mr.uv1, len(v1), [np.nan, np.nan])
+    uv2 = mr.second.to_input(mr.uv2, len(v2), [np.nan, np.nan])
     mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)
     plot_meshes(out / "meshes.png", v1, f1, c1, v2, f2, c2, title=f"E = {mr.result.energy:.3g}: corresponding points share a colour",
                 second_to_first=np.linalg.inv(similarity_transform(mr)))

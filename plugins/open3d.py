@@ -15,8 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshreg.mesh.correspond import disk_ids, similarity_transform, vertex_pairs
-from meshreg.mesh.export import on_input_vertices
+from meshreg.mesh.correspond import similarity_transform, vertex_pairs
 from meshreg.mesh.harmonic import HarmonicMap, choose_corners
 from meshreg.mesh.topology import prepare_disk
 from meshreg.register import Registration
@@ -101,8 +100,8 @@ def parametrize(mesh, *, weights: str = "mean-value", corners=None):
     """
     v, f = _arrays(mesh)
     disk = prepare_disk(v, f)
-    uv, _ = HarmonicMap(disk, weights)(choose_corners(disk, None if corners is None else disk_ids(disk, corners)))
-    per_vertex = on_input_vertices(uv, disk.vertex_map, len(v), [np.nan, np.nan])
+    uv, _ = HarmonicMap(disk, weights)(choose_corners(disk, None if corners is None else disk.input_ids(corners)))
+    per_vertex = disk.to_input(uv, len(v), [np.nan, np.nan])
     out = o3d.geometry.TriangleMesh(mesh)
     out.triangle_uvs = o3d.utility.Vector2dVector(per_vertex[f].reshape(-1, 2))
     return out

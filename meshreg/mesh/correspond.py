@@ -8,7 +8,6 @@ import numpy as np
 from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, RegularGridInterpolator
 from scipy.spatial import cKDTree
 
-from ..errors import InputError
 from ..register import Registration, register
 from ..search import best_start
 from ..spline import GridInterpolator
@@ -53,15 +52,6 @@ class MeshRegistration:
     colors1: np.ndarray
     colors2: np.ndarray
     info: dict
-
-
-def disk_ids(disk: DiskMesh, ids) -> np.ndarray:
-    """Indices in a cleaned disk of vertices given by their ids in the input mesh."""
-    ids = np.asarray(ids, dtype=np.int64)
-    at = np.clip(np.searchsorted(disk.vertex_map, ids), 0, len(disk.vertex_map) - 1)
-    if np.any(disk.vertex_map[at] != ids):
-        raise InputError(f"corner vertices {ids[disk.vertex_map[at] != ids].tolist()} are not in the cleaned mesh")
-    return at
 
 
 def placement_starts(disk: DiskMesh, trials: int) -> np.ndarray:
@@ -140,7 +130,7 @@ def register_meshes(
         disks.append(disk)
         maps.append(HarmonicMap(disk, weights))
         infos[name] = {"cleanup": disk.report}
-    pos = [choose_corners(d, None if c is None else disk_ids(d, c)) for d, c in zip(disks, corners)]
+    pos = [choose_corners(d, None if c is None else d.input_ids(c)) for d, c in zip(disks, corners)]
     search = corner_search > 0 and corners == (None, None) and not all(has_sharp_corners(d) for d in disks)
     if search:
         pos[0] = quarter_corners(disks[0], arc_fraction(disks[0], int(pos[0][0])))

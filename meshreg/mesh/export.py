@@ -26,17 +26,6 @@ def write_ply(path, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray)
     trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False).export(Path(path))
 
 
-def on_input_vertices(values: np.ndarray, vertex_map: np.ndarray, n_input: int, fill) -> np.ndarray:
-    """Per-vertex values (n, k) of a cleaned disk carried back to the n_input vertices of the mesh as given.
-
-    Vertices that cleanup dropped get ``fill``; vertices that hole filling added (after
-    ``len(vertex_map)``) have no input vertex and are left out.
-    """
-    out = np.tile(np.asarray(fill, dtype=float), (n_input, 1))
-    out[vertex_map] = values[: len(vertex_map)]
-    return out
-
-
 def registered_mesh(mr: MeshRegistration, objective):
     """The second surface sampled at h on the first's grid, brought into the first's frame (R^T, scale, centroid).
 

@@ -63,6 +63,27 @@ class DiskMesh:
     boundary: np.ndarray
     vertex_map: np.ndarray
     report: list = field(default_factory=list)
+    aliases: np.ndarray | None = None
+
+    def to_input(self, values: np.ndarray, n_input: int, fill) -> np.ndarray:
+        """Per-vertex values (n, k) of this disk carried back to the ``n_input`` vertices of the mesh as given.
+
+        Vertices that cleanup dropped get ``fill``; welded duplicates get their representative's value;
+        vertices added by hole filling have no input vertex and are left out.
+        """
+        out = np.tile(np.asarray(fill, dtype=float), (n_input, 1))
+        out[self.vertex_map] = values[: len(self.vertex_map)]
+        return out if self.aliases is None else out[self.aliases]
+
+    def input_ids(self, ids) -> np.ndarray:
+        """Indices in this disk of vertices given by their ids in the input mesh (InputError if dropped)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if self.aliases is not None:
+            ids = self.aliases[np.clip(ids, 0, len(self.aliases) - 1)] + np.where((ids < 0) | (ids >= len(self.aliases)), -len(self.aliases) - 1, 0)
+        at = np.clip(np.searchsorted(self.vertex_map, ids), 0, len(self.vertex_map) - 1)
+        if np.any(self.vertex_map[at] != ids):
+            raise InputError(f"vertex ids {ids[self.vertex_map[at] != ids].tolist()} are not in the (cleaned) mesh")
+        return at
 
 
 def _edges(faces):
@@ -123,6 +144,12 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
             raise InputError(f"the mesh has {int(bad.sum())} degenerate (zero-area) triangles: remove them or allow cleanup")
         f = f[~bad]
         report.append(f"removed {int(bad.sum())} degenerate triangles")
+    aliases = _weld_pieces(v, f) if cleanup else None
+    if aliases is not None:
+        pieces = _component_count(f, len(v))
+        f = aliases[f]
+        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        report.append(f"welded {int(np.sum(aliases != np.arange(len(v))))} coincident vertices (the mesh came in {pieces} pieces)")
     _, uniq, _, counts = _edges(f)
     if np.any(counts > 2):
         raise InputError(f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first")
@@ -158,16 +185,12 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     if len(loops) > 1 and fill_holes:
         v, f, added = _fill_holes(v, f, loops)
         report.append(f"filled {added} hole{'s' if added > 1 else ''} ({sum(len(x) for x in loops) - max(len(x) for x in loops)} boundary vertices)")
-    removed = 0
-    while cleanup and len(f) > 1:
+    if cleanup and len(f) > 1:  # one pass: peeling again would eat thin strips triangle by triangle
         _, _, inverse, counts = _edges(f)
         ears = (counts[inverse] == 1).reshape(3, -1).sum(axis=0) >= 2  # two sides on the boundary
-        if not ears.any() or ears.all():
-            break
-        f = f[~ears]
-        removed += int(ears.sum())
-    if removed:
-        report.append(f"removed {removed} boundary ears (triangles with two sides on the boundary)")
+        if ears.any() and not ears.all():
+            f = f[~ears]
+            report.append(f"removed {int(ears.sum())} boundary ears (triangles with two sides on the boundary)")
     used = np.unique(f)
     original = used[used < n]
     if len(original) < n:
@@ -185,7 +208,26 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     euler = len(v) - len(uniq) + len(f)
     if euler != 1:
         raise InputError(f"the mesh is not a disk (Euler characteristic {euler}, a disk has 1)")
-    return DiskMesh(v, f, np.array(loops[0]), original, report)
+    return DiskMesh(v, f, np.array(loops[0]), original, report, aliases)
+
+
+def _component_count(f, n: int) -> int:
+    adjacency = sp.csr_matrix((np.ones(2 * len(f)), (f[:, [0, 1]].ravel(), f[:, [1, 2]].ravel())), shape=(n, n))
+    _, labels = connected_components(adjacency, directed=False)
+    return len(np.unique(labels[f[:, 0]]))
+
+
+def _weld_pieces(v, f) -> np.ndarray | None:
+    """For a mesh in several pieces held together only by coincident vertices (a triangle soup, seams of an
+    exporter): each vertex's representative (the first vertex at its position), else None. A mesh that is one
+    piece is never welded: its coincident vertices may be a deliberate cut."""
+    if _component_count(f, len(v)) < 2:
+        return None
+    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
+    aliases = first[inverse.ravel()]
+    if np.all(aliases == np.arange(len(v))) or _component_count(aliases[f], len(v)) >= _component_count(f, len(v)):
+        return None
+    return aliases
 
 
 def _fill_holes(v, f, loops):
