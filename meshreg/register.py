@@ -293,7 +293,7 @@ def register(
                 hist = history if target is objective else work_history
                 stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
                 cap = descent.refine_iterations if target is work else descent.fine_iterations
-                params = replace(descent, max_iterations=min(descent.max_iterations, cap))
+                params = replace(descent, max_iterations=min(descent.max_iterations, cap), rel_tol=descent.refine_rel_tol)
                 rotation, h = _alternate(target, rotation, h, stage, params, max_rounds, round_tol, hist, track("refine", hist), notify)
             timings["refine"] = time.perf_counter() - tic
         elif work is not objective:
