@@ -197,6 +197,9 @@ def cmd_matrix(args) -> int:
         except (OSError, TimeoutError) as err:
             raise InputError(f"cannot reach the Dask scheduler at {args.scheduler}: {err}") from None
     checkpoint = out.with_name(out.name + CHECKPOINT_SUFFIX)
+    if not args.quiet:
+        print(f"preparing {len(files)} surfaces (read; meshes cleaned, mapped to the square, resampled), then "
+              f"{len(files) * (len(files) - 1) // 2} pairs", file=sys.stderr)
     with tqdm(desc="pairs", unit=" pair", disable=args.quiet) as bar:
         def progress(done, total):
             bar.total = total
