@@ -11,7 +11,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import InputError
-from .topology import DiskMesh
+from .topology import DiskMesh, loop_segments, triangle_areas
 
 SHARP_TURN = np.pi / 3  # a boundary vertex turning by more than this counts as a clear corner
 
@@ -29,7 +29,7 @@ def _principal_extremes(disk: DiskMesh) -> np.ndarray:
     triangulation or loop start, up to the order (a symmetry of the square)."""
     v, f = disk.vertices, disk.faces
     centres = v[f].mean(axis=1)
-    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    area = triangle_areas(v, f)
     mean = area @ centres / area.sum()
     d = centres - mean
     _, vecs = np.linalg.eigh((d * area[:, None]).T @ d)
@@ -77,7 +77,7 @@ def choose_corners(disk: DiskMesh, corners=None, start: int | None = None) -> np
 def _boundary_uv(disk: DiskMesh, corner_pos: np.ndarray) -> np.ndarray:
     loop = disk.boundary
     n = len(loop)
-    seg = np.linalg.norm(disk.vertices[np.roll(loop, -1)] - disk.vertices[loop], axis=1)
+    seg = loop_segments(disk.vertices, loop)
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     uv = np.empty((n, 2))
     start = corner_pos[0]
@@ -112,8 +112,7 @@ def _weights(v, f, kind):
 def quarter_corners(disk: DiskMesh, start: float) -> np.ndarray:
     """Loop positions (increasing) of the corners at quarter arc lengths from the point at arc-length
     fraction ``start`` in [0, 1) of the boundary loop (measured from its first vertex)."""
-    loop = disk.boundary
-    seg = np.linalg.norm(disk.vertices[np.roll(loop, -1)] - disk.vertices[loop], axis=1)
+    seg = loop_segments(disk.vertices, disk.boundary)
     arc = np.concatenate([[0.0], np.cumsum(seg)[:-1]]) / seg.sum()
     targets = (start + np.array([0.0, 0.25, 0.5, 0.75])) % 1.0
     gap = np.abs(arc[None, :] - targets[:, None])
@@ -125,8 +124,7 @@ def quarter_corners(disk: DiskMesh, start: float) -> np.ndarray:
 
 def arc_fraction(disk: DiskMesh, position: int) -> float:
     """Arc-length fraction in [0, 1) of the boundary loop at loop position ``position``."""
-    loop = disk.boundary
-    seg = np.linalg.norm(disk.vertices[np.roll(loop, -1)] - disk.vertices[loop], axis=1)
+    seg = loop_segments(disk.vertices, disk.boundary)
     return float(seg[:position].sum() / seg.sum())
 
 

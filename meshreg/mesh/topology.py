@@ -86,6 +86,30 @@ class DiskMesh:
         return at
 
 
+def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area of each triangle (m,)."""
+    v, f = vertices, faces
+    return 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+
+
+def loop_segments(vertices: np.ndarray, loop) -> np.ndarray:
+    """Length of each edge (b,) of a closed vertex loop, edge k running from loop[k] to loop[k + 1]."""
+    loop = np.asarray(loop)
+    return np.linalg.norm(vertices[np.roll(loop, -1)] - vertices[loop], axis=1)
+
+
+def _face_components(faces: np.ndarray, n: int) -> np.ndarray:
+    """Connected-component label of each face (m,), faces being connected through shared vertices."""
+    f = faces
+    adjacency = sp.csr_matrix((np.ones(2 * len(f)), (f[:, [0, 1]].ravel(), f[:, [1, 2]].ravel())), shape=(n, n))
+    return connected_components(adjacency, directed=False)[1][f[:, 0]]
+
+
+def _repeated_corner(faces: np.ndarray) -> np.ndarray:
+    """Whether each face (m,) uses one vertex twice."""
+    return (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+
+
 def _edges(faces):
     """Directed edges (3m, 2), the undirected edge keys, each directed edge's key index, and use counts."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
@@ -137,23 +161,23 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     if f.min() < 0 or f.max() >= len(v):
         raise InputError("faces refer to vertices that do not exist")
     report = []
-    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    bad = (area <= 1e-14 * max(area.max(), 1e-300)) | (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    area = triangle_areas(v, f)
+    bad = (area <= 1e-14 * max(area.max(), 1e-300)) | _repeated_corner(f)
     if bad.any():
         if not cleanup:
             raise InputError(f"the mesh has {int(bad.sum())} degenerate (zero-area) triangles: remove them or allow cleanup")
         f = f[~bad]
         report.append(f"removed {int(bad.sum())} degenerate triangles")
-    aliases = _weld_pieces(v, f) if cleanup else None
+    aliases, pieces = _weld_pieces(v, f) if cleanup else (None, 0)
     if aliases is not None:
-        pieces = _component_count(f, len(v))
         f = aliases[f]
-        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        f = f[~_repeated_corner(f)]
         report.append(f"welded {int(np.sum(aliases != np.arange(len(v))))} coincident vertices (the mesh came in {pieces} pieces)")
-    _, uniq, _, counts = _edges(f)
+    edges = _edges(f)
+    counts = edges[3]
     if np.any(counts > 2):
         raise InputError(f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first")
-    flipped = _orientation_flips(f)
+    flipped = _orientation_flips(f, edges)
     if flipped.any():
         if not cleanup:
             raise InputError(f"{int(flipped.sum())} triangles are oriented against their neighbours: fix the winding or allow cleanup")
@@ -169,11 +193,8 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
         report.append(f"removed {int(touching.sum())} triangles around {len(pinched)} vertices where the boundary touches itself")
     if len(f) == 0:
         raise InputError("no triangles are left after cleanup: the mesh is not a usable disk")
-    # components over faces sharing vertices
     n = len(v)
-    adjacency = sp.csr_matrix((np.ones(2 * len(f)), (f[:, [0, 1]].ravel(), f[:, [1, 2]].ravel())), shape=(n, n))
-    _, vertex_labels = connected_components(adjacency, directed=False)
-    labels = vertex_labels[f[:, 0]]
+    labels = _face_components(f, n)
     ncomp = len(np.unique(labels))
     if ncomp > 1:
         if not cleanup:
@@ -183,8 +204,8 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
         f = f[keep]
     loops = _boundary_loops(f)
     if len(loops) > 1 and fill_holes:
-        v, f, added = _fill_holes(v, f, loops)
-        report.append(f"filled {added} hole{'s' if added > 1 else ''} ({sum(len(x) for x in loops) - max(len(x) for x in loops)} boundary vertices)")
+        v, f, added, rim = _fill_holes(v, f, loops)
+        report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
     if cleanup and len(f) > 1:  # one pass: peeling again would eat thin strips triangle by triangle
         _, _, inverse, counts = _edges(f)
         ears = (counts[inverse] == 1).reshape(3, -1).sum(axis=0) >= 2  # two sides on the boundary
@@ -211,29 +232,24 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     return DiskMesh(v, f, np.array(loops[0]), original, report, aliases)
 
 
-def _component_count(f, n: int) -> int:
-    adjacency = sp.csr_matrix((np.ones(2 * len(f)), (f[:, [0, 1]].ravel(), f[:, [1, 2]].ravel())), shape=(n, n))
-    _, labels = connected_components(adjacency, directed=False)
-    return len(np.unique(labels[f[:, 0]]))
-
-
-def _weld_pieces(v, f) -> np.ndarray | None:
+def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
     """For a mesh in several pieces held together only by coincident vertices (a triangle soup, seams of an
-    exporter): each vertex's representative (the first vertex at its position), else None. A mesh that is one
-    piece is never welded: its coincident vertices may be a deliberate cut."""
-    if _component_count(f, len(v)) < 2:
-        return None
+    exporter): each vertex's representative (the first vertex at its position) and the number of pieces, else
+    (None, pieces). A mesh that is one piece is never welded: its coincident vertices may be a deliberate cut."""
+    pieces = len(np.unique(_face_components(f, len(v))))
+    if pieces < 2:
+        return None, pieces
     _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
     aliases = first[inverse.ravel()]
-    if np.all(aliases == np.arange(len(v))) or _component_count(aliases[f], len(v)) >= _component_count(f, len(v)):
-        return None
-    return aliases
+    if np.all(aliases == np.arange(len(v))) or len(np.unique(_face_components(aliases[f], len(v)))) >= pieces:
+        return None, pieces
+    return aliases, pieces
 
 
 def _fill_holes(v, f, loops):
-    """Close all loops but the longest (in length) by fans around their centroids; returns v, f, holes filled."""
-    lengths = [np.linalg.norm(v[np.roll(x, -1)] - v[x], axis=1).sum() for x in loops]
-    outer = int(np.argmax(lengths))
+    """Close all loops but the longest (in length) by fans around their centroids; returns v, f, the number of
+    holes filled and of vertices around them."""
+    outer = int(np.argmax([loop_segments(v, x).sum() for x in loops]))
     new_v, new_f = [v], [f]
     n = len(v)
     for k, loop in enumerate(loops):
@@ -244,17 +260,17 @@ def _fill_holes(v, f, loops):
         # the loop runs with the mesh on its left: the filling faces use its edges backwards
         new_f.append(np.c_[np.roll(loop, -1), loop, np.full(len(loop), n)])
         n += 1
-    return np.vstack(new_v), np.vstack(new_f), len(loops) - 1
+    return np.vstack(new_v), np.vstack(new_f), len(loops) - 1, sum(len(x) for x in loops) - len(loops[outer])
 
 
-def _orientation_flips(faces) -> np.ndarray:
+def _orientation_flips(faces, edges) -> np.ndarray:
     """Which triangles (m,) to reverse so that every interior edge is crossed in opposite directions by its
-    two triangles (a consistent winding; per component, the orientation of most triangles wins)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    two triangles (a consistent winding; per component, the orientation of most triangles wins). ``edges``
+    is :func:`_edges` of the faces."""
+    e, _, inverse, _ = edges
     m = len(faces)
-    key = np.minimum(e[:, 0], e[:, 1]) * (int(faces.max()) + 1) + np.maximum(e[:, 0], e[:, 1])
-    order = np.argsort(key, kind="stable")
-    pair = np.flatnonzero(key[order][1:] == key[order][:-1])
+    order = np.argsort(inverse, kind="stable")
+    pair = np.flatnonzero(inverse[order][1:] == inverse[order][:-1])
     a, b = order[pair], order[pair + 1]
     same = e[a, 0] == e[b, 0]  # both triangles run the shared edge the same way: one must flip
     if not same.any():
