@@ -92,20 +92,18 @@ def _register_meshes_and_write(first, second, out: Path, params: dict, quiet: bo
     from tqdm import tqdm
 
     from .mesh.correspond import register_meshes, similarity_transform
-    from .mesh.export import UNMATCHED, plot_meshes, registered_mesh, write_ply
+    from .mesh.export import colored_outputs, plot_meshes, write_ply
     from .objective import Objective
     from .viz import plot_registration
 
     with tqdm(desc="registering", unit=" steps", disable=quiet, leave=False) as bar:
         mr = register_meshes(first, second, callback=_progress_callback(bar), **params)
     (v1, f1), (v2, f2) = first, second
-    c1 = mr.first.to_input(mr.colors1, len(v1), UNMATCHED)
-    c2 = mr.second.to_input(mr.colors2, len(v2), UNMATCHED)
+    objective = Objective(*mr.grids)
+    c1, c2, registered = colored_outputs(mr, len(v1), len(v2), objective)
     write_ply(out / "first.ply", v1, f1, c1)
     write_ply(out / "second.ply", v2, f2, c2)
-    objective = Objective(*mr.grids)
-    reg_v, reg_f, reg_c = registered_mesh(mr, objective)
-    write_ply(out / "registered.ply", reg_v, reg_f, reg_c)
+    write_ply(out / "registered.ply", *registered)
     uv1 = mr.first.to_input(mr.uv1, len(v1), [np.nan, np.nan])
     uv2 = mr.second.to_input(mr.uv2, len(v2), [np.nan, np.nan])
     mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)

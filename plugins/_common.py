@@ -7,7 +7,7 @@ import importlib
 import numpy as np
 
 from meshreg.mesh.correspond import MeshRegistration, register_meshes
-from meshreg.mesh.export import UNMATCHED, registered_mesh
+from meshreg.mesh.export import colored_outputs
 from meshreg.objective import Objective
 
 
@@ -23,6 +23,4 @@ def register_arrays(first, second, **params) -> tuple[MeshRegistration, np.ndarr
     """Register (vertices, faces) pairs; returns the mesh registration, colours (n1, 3) and (n2, 3) in [0, 1] on
     the input vertices (grey where cleanup dropped a vertex) and the registered mesh (vertices, faces, colours)."""
     mr = register_meshes(first, second, **params)
-    c1 = mr.first.to_input(mr.colors1, len(first[0]), UNMATCHED)
-    c2 = mr.second.to_input(mr.colors2, len(second[0]), UNMATCHED)
-    return mr, c1, c2, registered_mesh(mr, Objective(*mr.grids))
+    return mr, *colored_outputs(mr, len(first[0]), len(second[0]), Objective(*mr.grids))

@@ -40,6 +40,15 @@ def registered_mesh(mr: MeshRegistration, objective):
     return pts.reshape(-1, 3), grid_faces(len(res.r), len(res.t)), uv_colors(uv)
 
 
+def colored_outputs(mr: MeshRegistration, n_first: int, n_second: int, objective):
+    """What a mesh registration gives back: colours (n_first, 3) and (n_second, 3) in [0, 1] on the input
+    vertices of both meshes (grey where cleanup dropped a vertex) and the registered mesh of
+    :func:`registered_mesh` (vertices, faces, colours). ``objective`` is the Objective of ``mr.grids``."""
+    c1 = mr.first.to_input(mr.colors1, n_first, UNMATCHED)
+    c2 = mr.second.to_input(mr.colors2, n_second, UNMATCHED)
+    return c1, c2, registered_mesh(mr, objective)
+
+
 def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     """A rotation (3, 3) taking the mesh's mean (area-weighted) normal to +z: the camera then faces the surface."""
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]).sum(axis=0)
