@@ -61,6 +61,12 @@ def placement_starts(disk: DiskMesh, trials: int) -> np.ndarray:
     return arc_fraction(disk, int(choose_corners(disk)[0])) + 0.25 / trials * np.arange(trials)
 
 
+def placement_corners(disk: DiskMesh, trials: int) -> list[np.ndarray]:
+    """Corner loop positions (4,) of each trial placement of :func:`placement_starts`; the first is the
+    placement a round-boundary mesh uses as the first surface of a pair."""
+    return [quarter_corners(disk, start % 1.0) for start in placement_starts(disk, trials)]
+
+
 def placement_energy(coarse1, coarse2) -> float:
     """Rank of a corner placement: the best coarse DP energy over the square's symmetries and rotations."""
     return best_start(coarse1, coarse2)[0].energy
@@ -133,7 +139,7 @@ def register_meshes(
     pos = [choose_corners(d, None if c is None else d.input_ids(c)) for d, c in zip(disks, corners)]
     search = corner_search > 0 and corners == (None, None) and not all(has_sharp_corners(d) for d in disks)
     if search:
-        pos[0] = quarter_corners(disks[0], arc_fraction(disks[0], int(pos[0][0])))
+        pos[0] = placement_corners(disks[0], 1)[0]
         pos[1], tried = search_corners(maps[0], pos[0], maps[1], corner_search)
         infos["second"]["corner_search"] = tried
     uvs = []
@@ -188,7 +194,7 @@ def mesh_grids(vertices: np.ndarray, faces: np.ndarray, *, grid: int = DEFAULT_G
     disk = prepare_disk(vertices, faces, cleanup=cleanup)
     hmap = HarmonicMap(disk, weights)
     if corner_search > 0 and not has_sharp_corners(disk):
-        placements = [quarter_corners(disk, start % 1.0) for start in placement_starts(disk, corner_search)]
+        placements = placement_corners(disk, corner_search)
     else:
         placements = [choose_corners(disk)]
     maps = [hmap(corners) for corners in placements]
