@@ -5,7 +5,11 @@ Modes
 ``"dp"``
     DP-surface-min alone (h = (gamma(r), t)), alternated with Kabsch.
 ``"gd"``
-    Descent from R = I and h = id, alternated with Kabsch (the paper's "without DP" runs).
+    Descent from R = I and h = id, alternated with Kabsch (the paper's "without DP" runs). Two
+    paths are run and the one ending at the lower E is kept: the plain descent, and one through a
+    Gaussian scale space of both surfaces (``smoothing``, :mod:`meshreg.scale`); each starts in a
+    coarse basis (``start_basis``). A descent from the identity otherwise settles in the nearest
+    local minimum, far from the best one when the surfaces have different numbers of folds.
 ``"dp+gd"``
     The paper's method: DP-surface-min, then descent from its R and h, alternated with Kabsch.
 ``"auto"`` (default)
@@ -17,8 +21,8 @@ the Gauss-Newton metric, or ``solver="gradient"``, the paper's steepest descent)
 ``refine="none"``, a Gauss-Newton refinement in which every grid node of h moves on its own
 (:func:`meshreg.fields.node_basis`). The refinement is meshreg's addition: the sine basis cannot
 follow reparametrizations like r^0.8 near a side, which left E = 2e-4 to 4e-4 on the paper's
-same-shape pairs; with it they reach E < 1e-9. ``refine="none", solver="gradient"`` is the paper's
-procedure as published.
+same-shape pairs; with it they reach E < 1e-9. ``refine="none", solver="gradient", smoothing=(),
+start_basis=5`` is the paper's procedure as published.
 
 References
 ----------
@@ -43,6 +47,7 @@ from .errors import InputError
 from .grid import GridSurface, read_grid
 from .objective import Objective
 from .rotation import kabsch
+from .scale import level_nodes, smoothed
 from .spline import GridInterpolator
 from .search import apply_symmetry, best_start, symmetry_map
 
@@ -83,7 +88,9 @@ class Registration:
     energy_dp : float
         E after the DP stage (NaN when the mode has none).
     energy_history : ndarray, shape (K,)
-        E after every accepted descent step and Kabsch step, starting from the initial E.
+        E after every accepted descent step and Kabsch step, starting from the initial E (in mode
+        "gd", of the path kept; a scale-space path starts at E of the original pair at the end of the
+        smoothed levels).
     r : ndarray, shape (M,)
     t : ndarray, shape (N,)
         The first surface's partitions.
@@ -91,7 +98,8 @@ class Registration:
     params : dict
         Every parameter that produced the result.
     timings : dict
-        Seconds per stage (``search``, ``dp``, ``gd``, ``refine``, ``total``).
+        Seconds per stage (``search``, ``dp``, ``gd``, ``smoothing`` (mode "gd": the smoothed levels),
+        ``refine``, ``total``).
     symmetry : int
         Index into :data:`meshreg.search.SQUARE_SYMMETRIES` of the symmetry of the square applied
         to the second surface first (0: none). h includes it: h = sigma o h', with h' the
@@ -243,6 +251,8 @@ def register(
         descent = DescentParams(**{**asdict(descent or DescentParams()), **descent_params})
     except TypeError as err:
         raise InputError(f"unknown parameter: {err}") from None
+    if not all(np.isfinite(s) and s > 0 for s in descent.smoothing):
+        raise InputError(f"smoothing must be positive standard deviations, got {descent.smoothing}")
     start = time.perf_counter()
     first, second = as_surface(first), as_surface(second)
     second_area = second.area()
@@ -269,36 +279,22 @@ def register(
         history.append(energy_dp)
         notify("dp", 0, energy_dp)
         timings["dp"] = time.perf_counter() - tic
+    gd_path = None
     if mode != "dp":
-        tic = time.perf_counter()
         # descent on a grid of at most COARSE_NODES nodes per axis, then node refinement on the full grid
-        work, (ir, it) = _coarse_objective(objective, first, second, second_area)
-        work_history = history if work is objective else []
-        track = lambda stage, hist: lambda i, e: (hist.append(e), notify(stage, i, e))  # noqa: E731
-        step = descend if solver == "gradient" else gauss_newton
-        basis = riseth_basis(descent.basis, work.r, work.t)
-        stage = lambda o, R, hh, p, cb: step(o, R, hh, p, basis, cb)  # noqa: E731
-        h = _valid_start(objective, h)[np.ix_(ir, it)]
-        rotation, h = _alternate(work, rotation, h, stage, descent, max_rounds, round_tol, work_history, track("gd", work_history), notify)
-        timings["gd"] = time.perf_counter() - tic
-        if refine == "nodes":
-            tic = time.perf_counter()
-            levels = [(bspline_basis(k, work.r, work.t), False, work) for k in REFINE_KNOTS if k < min(work.first.shape) // 2]
-            levels.append((None, True, objective))
-            for fields, additive, target in levels:
-                if target is not work and work is not objective:
-                    h = _upsample(h, work, objective)
-                    history.append(objective.energy(rotation, h))
-                fields = fields or node_basis(target.r, target.t)
-                hist = history if target is objective else work_history
-                stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
-                cap = descent.refine_iterations if target is work else descent.fine_iterations
-                params = replace(descent, max_iterations=min(descent.max_iterations, cap), rel_tol=descent.refine_rel_tol)
-                rotation, h = _alternate(target, rotation, h, stage, params, max_rounds, round_tol, hist, track("refine", hist), notify)
-            timings["refine"] = time.perf_counter() - tic
-        elif work is not objective:
-            h = _upsample(h, work, objective)
-            history.append(objective.energy(rotation, h))
+        work, nodes = _coarse_objective(objective, first, second, second_area)
+        drive = _Descent(objective, work, descent, solver, refine, max_rounds, round_tol, notify)
+        if mode == "gd":
+            # the plain descent and one through the scale space; the lower final E wins
+            paths = [()] + ([tuple(descent.smoothing)] if descent.smoothing else [])
+            runs = [drive.from_identity(first, second, sigmas) for sigmas in paths]
+            best = int(np.argmin([objective.energy(R, hh) for R, hh, _ in runs]))
+            rotation, h, history = runs[best]
+            gd_path = list(paths[best])
+        else:
+            h_start = _valid_start(objective, h)[np.ix_(*nodes)]
+            rotation, h = drive.run(rotation, h_start, [descent.basis], history)
+        timings.update(drive.timings)
     energy = objective.energy(rotation, h)
     h = symmetry_map(symmetry, h)
     if not history:
@@ -313,8 +309,10 @@ def register(
         "max_rounds": max_rounds,
         "round_tol": round_tol,
         **asdict(descent),
+        "smoothing": list(descent.smoothing),  # a list, as it reads back from result.npz's JSON
         "search": search,
         "symmetries": symmetries,
+        "gd_path": gd_path,
         "grid_first": list(objective.first.shape),
         "grid_second": list(objective.second.shape),
     }
@@ -348,6 +346,89 @@ def _upsample(h: np.ndarray, coarse: Objective, fine: Objective) -> np.ndarray:
     """h from the coarse grid's nodes to the fine grid's (bicubic), sides kept exact."""
     value = GridInterpolator(h, coarse.r, coarse.t)(fine.identity[..., 0], fine.identity[..., 1])[0]
     return enforce_boundary(value)
+
+
+class _Descent:
+    """Steps 2-3 of the outline on one pair: the basis descent, then the refinement levels, each alternated
+    with Kabsch; ``timings`` adds up the seconds per stage over every call."""
+
+    def __init__(self, objective, work, params, solver, refine, max_rounds, round_tol, notify):
+        self.objective, self.work, self.params = objective, work, params
+        self.step = descend if solver == "gradient" else gauss_newton
+        self.refine, self.rounds, self.notify = refine, (max_rounds, round_tol), notify
+        self.timings = {"gd": 0.0, **({"refine": 0.0} if refine == "nodes" else {})}
+
+    @staticmethod
+    def _track(stage, history, notify):
+        return lambda i, e: (history.append(e), notify(stage, i, e))
+
+    def _bases(self, target, rotation, h, bases, history, notify):
+        """Descend on ``target`` in the Riseth bases with KL in ``bases``, one after the other."""
+        for kl in bases:
+            basis = riseth_basis(kl, target.r, target.t)
+            stage = lambda o, R, hh, p, cb, b=basis: self.step(o, R, hh, p, b, cb)  # noqa: E731
+            track = self._track("gd", history, notify)
+            rotation, h = _alternate(target, rotation, h, stage, self.params, *self.rounds, history, track, notify)
+        return rotation, h
+
+    def run(self, rotation, h, bases, history):
+        """Descend from (R, h) (h at the work grid's nodes), refine; E on the full grid appended to ``history``.
+
+        Returns R and h at the full grid's nodes.
+        """
+        objective, work, descent = self.objective, self.work, self.params
+        tic = time.perf_counter()
+        work_history = history if work is objective else []
+        rotation, h = self._bases(work, rotation, h, bases, work_history, self.notify)
+        self.timings["gd"] += time.perf_counter() - tic
+        if self.refine == "none":
+            if work is not objective:
+                h = _upsample(h, work, objective)
+                history.append(objective.energy(rotation, h))
+            return rotation, h
+        tic = time.perf_counter()
+        levels = [(bspline_basis(k, work.r, work.t), False, work) for k in REFINE_KNOTS if k < min(work.first.shape) // 2]
+        levels.append((None, True, objective))
+        for fields, additive, target in levels:
+            if target is not work and work is not objective:
+                h = _upsample(h, work, objective)
+                history.append(objective.energy(rotation, h))
+            fields = fields or node_basis(target.r, target.t)
+            hist = history if target is objective else work_history
+            stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
+            cap = descent.refine_iterations if target is work else descent.fine_iterations
+            params = replace(descent, max_iterations=min(descent.max_iterations, cap), rel_tol=descent.refine_rel_tol)
+            rotation, h = _alternate(target, rotation, h, stage, params, *self.rounds, hist, self._track("refine", hist, self.notify), self.notify)
+        self.timings["refine"] += time.perf_counter() - tic
+        return rotation, h
+
+    def from_identity(self, first: GridSurface, second: GridSurface, sigmas):
+        """Mode "gd": from R = I and h = id through the smoothed pairs ``sigmas``, then :meth:`run`.
+
+        Each level starts from the previous level's R and h; every descent from far away runs in the coarse
+        basis (KL = ``start_basis``) before the full one.
+
+        Returns
+        -------
+        rotation, h, history
+        """
+        descent, work = self.params, self.work
+        bases = [descent.start_basis, descent.basis] if descent.start_basis < descent.basis else [descent.basis]
+        rotation, h, previous = np.eye(3), None, None
+        tic = time.perf_counter()
+        relabel = lambda stage, i, e: self.notify("smoothing", i, e)  # noqa: E731
+        for sigma in sigmas:
+            n = level_nodes(sigma, COARSE_NODES)
+            level = Objective(smoothed(first, sigma, n), smoothed(second, sigma, n))
+            h = level.identity.copy() if h is None else _valid_start(level, _upsample(h, previous, level))
+            rotation, h = self._bases(level, rotation, h, bases, [], relabel)
+            previous = level
+        if sigmas:
+            self.timings["smoothing"] = self.timings.get("smoothing", 0.0) + time.perf_counter() - tic
+        h = work.identity.copy() if h is None else _valid_start(work, _upsample(h, previous, work))
+        history = []
+        rotation, h = self.run(rotation, h, bases, history)
+        return rotation, h, history
 
 
 def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: bool):

@@ -46,3 +46,15 @@ def test_dp_on_r_perturbations_is_near_zero_with_the_true_rotation(name):
     result = meshreg.register(pair.first, pair.second, mode="dp")
     assert result.energy < 1e-3
     assert angle_between(result.rotation, pair.rotation) < 0.1
+
+
+@pytest.mark.parametrize("name", list(PAIRS))
+def test_gd_alone_does_no_worse_than_the_papers_runs_without_dp(name):
+    """Descent from R = I and h = id (no DP): at most the paper's "without DP" energy on all ten pairs."""
+    pair = PAIRS[name]
+    result = meshreg.register(pair.first, pair.second, mode="gd")
+    assert result.energy <= pair.paper["gd"]
+    assert np.isnan(result.energy_dp)
+    if pair.same_shape:
+        assert result.energy < 1e-6
+        assert angle_between(result.rotation, pair.rotation) < 0.1
