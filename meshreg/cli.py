@@ -79,6 +79,10 @@ def _register_params(args) -> dict:
     params = {"window": args.window, "basis": args.basis, "solver": args.solver, "refine": args.refine}
     if args.max_rounds is not None:
         params["max_rounds"] = args.max_rounds
+    if args.smoothing is not None:
+        params["smoothing"] = tuple(args.smoothing)
+    if args.start_basis is not None:
+        params["start_basis"] = args.start_basis
     return params
 
 
@@ -247,6 +251,11 @@ def _registration_options(parser) -> None:
     parser.add_argument("--solver", choices=SOLVERS, default="gauss-newton", help="descent direction (default gauss-newton)")
     parser.add_argument("--refine", choices=REFINEMENTS, default="nodes", help="node-wise refinement (default nodes)")
     parser.add_argument("--max-rounds", type=int, default=None, help="most descent + Kabsch rounds per stage")
+    parser.add_argument("--smoothing", type=float, nargs="*", default=None, metavar="SIGMA",
+                        help="mode gd: Gaussian scale-space levels of its second path, in side lengths, largest first "
+                             "(default 0.1; give none for the plain descent only)")
+    parser.add_argument("--start-basis", type=int, default=None, metavar="KL",
+                        help="mode gd: KL of the coarse basis the descent from the identity starts in (default 3)")
 
 
 def build_parser() -> argparse.ArgumentParser:

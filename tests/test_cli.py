@@ -85,3 +85,14 @@ def test_symmetric_reports_both_directions(grid_files, tmp_path, capsys):
     forward, backward = Registration.load(tmp_path / "result.npz"), Registration.load(tmp_path / "result_reverse.npz")
     assert forward.energy < 1e-6 and backward.energy < 1e-6
     assert np.allclose(backward.rotation, forward.rotation.T, atol=1e-3)
+
+
+def test_gd_scale_space_options_reach_the_result(grid_files, tmp_path):
+    args = ["register", str(grid_files / "first.npy"), str(grid_files / "second.npy"), "--mode", "gd", "-q"]
+    assert main(args + ["-o", str(tmp_path / "a"), "--smoothing", "0.2", "0.1", "--start-basis", "2"]) == 0
+    assert main(args + ["-o", str(tmp_path / "b"), "--smoothing"]) == 0
+    a, b = (Registration.load(tmp_path / d / "result.npz") for d in "ab")
+    assert a.params["smoothing"] == [0.2, 0.1] and a.params["start_basis"] == 2
+    assert a.params["gd_path"] in ([], [0.2, 0.1])
+    assert b.params["smoothing"] == [] and b.params["gd_path"] == []
+    assert "smoothing" in a.timings and "smoothing" not in b.timings
