@@ -107,15 +107,13 @@ class DescentParams:
         fraction. Default 1e-2: on the paper's different-shape pairs the levels otherwise spent 2/3 of the
         time on 0.2% steps; same-shape pairs, whose E falls by orders of magnitude, are not affected.
     start_basis : int
-        A descent from the identity (mode "gd") first runs in the basis with KL = ``start_basis``, then
-        with KL = ``basis``: large smooth moves before the finer fields. Default 3; ``start_basis >= basis``
-        turns it off. On the paper's pairs it lowered gd's E on every pair it changed (sine 2-3 g2 0.61 ->
-        0.37, sine 2-4 g2 0.83 -> 0.68; same shapes to E < 4e-8).
+        Mode "gd" also runs a descent from the identity that first moves in the basis with
+        KL = ``start_basis``, then KL = ``basis``: large smooth moves before the finer fields. Default 3;
+        ``start_basis >= basis`` turns this path off.
     smoothing : tuple of float
         Mode "gd" also descends through this Gaussian scale space of both surfaces (standard deviations in
-        units of the unit square's side, largest first; see :mod:`meshreg.scale`) before the original pair,
-        and keeps whichever path, this one or the plain descent, ends at the lower E. Default (0.1,);
-        () for the plain descent only.
+        units of the unit square's side, largest first; see :mod:`meshreg.scale`) before the original pair.
+        Default (0.1,); () turns this path off. Mode "gd" keeps whichever of its paths ends at the lower E.
     """
 
     basis: int = DEFAULT_BASIS

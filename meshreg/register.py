@@ -5,11 +5,12 @@ Modes
 ``"dp"``
     DP-surface-min alone (h = (gamma(r), t)), alternated with Kabsch.
 ``"gd"``
-    Descent from R = I and h = id, alternated with Kabsch (the paper's "without DP" runs). Two
-    paths are run and the one ending at the lower E is kept: the plain descent, and one through a
-    Gaussian scale space of both surfaces (``smoothing``, :mod:`meshreg.scale`); each starts in a
-    coarse basis (``start_basis``). A descent from the identity otherwise settles in the nearest
-    local minimum, far from the best one when the surfaces have different numbers of folds.
+    Descent from R = I and h = id, alternated with Kabsch (the paper's "without DP" runs). A
+    descent from the identity settles in the nearest local minimum, which is far from the best one
+    when the surfaces have different numbers of folds, and which one it is depends on the path. So
+    up to three paths are run and the one ending at the lower E is kept (``params["gd_path"]``):
+    the plain descent in the basis KL = ``basis``; the same after a coarser basis KL = ``start_basis``;
+    and that through a Gaussian scale space of both surfaces (``smoothing``, :mod:`meshreg.scale`).
 ``"dp+gd"``
     The paper's method: DP-surface-min, then descent from its R and h, alternated with Kabsch.
 ``"auto"`` (default)
@@ -285,12 +286,11 @@ def register(
         work, nodes = _coarse_objective(objective, first, second, second_area)
         drive = _Descent(objective, work, descent, solver, refine, max_rounds, round_tol, notify)
         if mode == "gd":
-            # the plain descent and one through the scale space; the lower final E wins
-            paths = [()] + ([tuple(descent.smoothing)] if descent.smoothing else [])
-            runs = [drive.from_identity(first, second, sigmas) for sigmas in paths]
+            paths = _gd_paths(descent)
+            runs = [drive.from_identity(first, second, path["smoothing"], path["bases"]) for path in paths]
             best = int(np.argmin([objective.energy(R, hh) for R, hh, _ in runs]))
             rotation, h, history = runs[best]
-            gd_path = list(paths[best])
+            gd_path = paths[best]
         else:
             h_start = _valid_start(objective, h)[np.ix_(*nodes)]
             rotation, h = drive.run(rotation, h_start, [descent.basis], history)
@@ -402,18 +402,17 @@ class _Descent:
         self.timings["refine"] += time.perf_counter() - tic
         return rotation, h
 
-    def from_identity(self, first: GridSurface, second: GridSurface, sigmas):
+    def from_identity(self, first: GridSurface, second: GridSurface, sigmas, bases):
         """Mode "gd": from R = I and h = id through the smoothed pairs ``sigmas``, then :meth:`run`.
 
-        Each level starts from the previous level's R and h; every descent from far away runs in the coarse
-        basis (KL = ``start_basis``) before the full one.
+        Each level starts from the previous level's R and h and descends in the Riseth bases with KL in
+        ``bases``, one after the other.
 
         Returns
         -------
         rotation, h, history
         """
-        descent, work = self.params, self.work
-        bases = [descent.start_basis, descent.basis] if descent.start_basis < descent.basis else [descent.basis]
+        work = self.work
         rotation, h, previous = np.eye(3), None, None
         tic = time.perf_counter()
         relabel = lambda stage, i, e: self.notify("smoothing", i, e)  # noqa: E731
@@ -429,6 +428,17 @@ class _Descent:
         history = []
         rotation, h = self.run(rotation, h, bases, history)
         return rotation, h, history
+
+
+def _gd_paths(descent: DescentParams) -> list[dict]:
+    """The descent paths of mode "gd": the plain descent in KL = ``basis``; the same after KL = ``start_basis``;
+    and that through the scale space ``smoothing``. The last two only when their parameters ask for them."""
+    paths = [{"smoothing": [], "bases": [descent.basis]}]
+    if descent.start_basis < descent.basis:
+        paths.append({"smoothing": [], "bases": [descent.start_basis, descent.basis]})
+    if descent.smoothing:
+        paths.append({"smoothing": list(descent.smoothing), "bases": paths[-1]["bases"]})
+    return paths
 
 
 def _dp_along(objective: Objective, rotation, h, window, dp_rounds, along_t: bool):
