@@ -83,6 +83,8 @@ def _register_params(args) -> dict:
         params["smoothing"] = tuple(args.smoothing)
     if args.start_basis is not None:
         params["start_basis"] = args.start_basis
+    if args.max_starts is not None:
+        params["max_starts"] = args.max_starts
     return params
 
 
@@ -251,6 +253,8 @@ def _registration_options(parser) -> None:
     parser.add_argument("--solver", choices=SOLVERS, default="gauss-newton", help="descent direction (default gauss-newton)")
     parser.add_argument("--refine", choices=REFINEMENTS, default="nodes", help="node-wise refinement (default nodes)")
     parser.add_argument("--max-rounds", type=int, default=None, help="most descent + Kabsch rounds per stage")
+    parser.add_argument("--max-starts", type=int, default=None, metavar="K",
+                        help="mode auto: most ranked starts registered in full (default 3; 1 = the best-ranked only)")
     parser.add_argument("--smoothing", type=float, nargs="*", default=None, metavar="SIGMA",
                         help="mode gd: Gaussian scale-space levels of its second path, in side lengths, largest first "
                              "(default 0.1; give none for the plain descent only)")

@@ -14,7 +14,10 @@ Modes
 ``"dp+gd"``
     The paper's method: DP-surface-min, then descent from its R and h, alternated with Kabsch.
 ``"auto"`` (default)
-    DP along r and along t (the transposed problem), alternated and composed, then descent.
+    Starts (a symmetry of the square for the second surface and a rotation) ranked by a coarse DP
+    (:func:`meshreg.search.best_start`); from each start close to the best (``start_margin``,
+    ``max_starts``), DP along r and along t (the transposed problem), alternated and composed, then the
+    basis descent; the start with the lowest E is refined.
 
 Descent has two stages, each alternated with Kabsch (Steps 2-3 of the paper's outline):
 the paper's descent in the Riseth basis (``solver="gauss-newton"``, the gradient preconditioned by
@@ -50,7 +53,7 @@ from .objective import Objective
 from .rotation import kabsch
 from .scale import level_nodes, smoothed
 from .spline import GridInterpolator
-from .search import apply_symmetry, best_start, symmetry_map
+from .search import Start, apply_symmetry, best_start, symmetry_map
 
 MODES = ("auto", "dp", "gd", "dp+gd")
 DEFAULT_MODE = "auto"
@@ -64,6 +67,10 @@ START_BLENDS = (0.0, 1e-3, 1e-2, 0.1, 0.5)  # blends toward the identity tried f
 START_MIN_DET = 1e-3  # smallest det J (per cell; its mean is 1) of a descent start
 # a symmetry of the square other than the identity must beat it by this fraction (coarse DP energy)
 SYMMETRY_MARGIN = 0.05
+# auto: starts whose coarse energy is within DEFAULT_START_MARGIN of the best are registered in full (at most
+# DEFAULT_MAX_STARTS)
+DEFAULT_MAX_STARTS = 3
+DEFAULT_START_MARGIN = 0.5
 # coarse-to-fine refinement: cubic B-spline fields on 12 and 24 knots per axis, then every node
 REFINE_KNOTS = (12, 24)
 # the descent and the B-spline refinement run on at most this many nodes per axis
@@ -193,6 +200,8 @@ def register(
     descent: DescentParams | None = None,
     search: bool = True,
     symmetries: bool = True,
+    max_starts: int = DEFAULT_MAX_STARTS,
+    start_margin: float = DEFAULT_START_MARGIN,
     callback: Progress | None = None,
     **descent_params,
 ) -> Registration:
@@ -224,6 +233,12 @@ def register(
     symmetries : bool
         In "auto" with ``search``: also try the 8 symmetries of the square as a first
         reparametrization of the second surface. Default True.
+    max_starts, start_margin : int, float
+        In "auto" with ``search``: the best-ranked start and every other whose coarse DP energy is within
+        ``start_margin`` (relative) of it, at most ``max_starts`` in all, are each registered in full; the
+        lowest E wins (a start ranked higher keeps a near tie, within 5%). The coarse ranking alone picked
+        the wrong one of two close starts on nearly symmetric meshes (E 0.014 where the runner-up gave
+        0.0044). Defaults 3 and 0.5; ``max_starts=1`` registers the best-ranked start only.
     descent : DescentParams, optional
         Descent parameters; keyword arguments named like its fields (``basis``, ``rel_tol``, ...)
         override single fields.
@@ -248,6 +263,8 @@ def register(
             raise InputError(f"unknown {name} {value!r}: choose one of {', '.join(allowed)}")
     if window < 1:
         raise InputError("window must be a positive integer")
+    if max_starts < 1 or not start_margin >= 0:
+        raise InputError("max_starts must be at least 1 and start_margin at least 0")
     try:
         descent = DescentParams(**{**asdict(descent or DescentParams()), **descent_params})
     except TypeError as err:
@@ -257,48 +274,24 @@ def register(
     start = time.perf_counter()
     first, second = as_surface(first), as_surface(second)
     second_area = second.area()
-    symmetry, start_rotation = 0, None
     timings = {}
+    starts = [Start(0, None, float("nan"))]
     if mode == "auto" and search:
         tic = time.perf_counter()
-        starts = best_start(first, second, symmetries=symmetries)
-        best = starts[0]
-        identity_start = next(s for s in starts if s.symmetry == 0)
-        if identity_start.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
-            best = identity_start  # ties (surfaces with a mirror symmetry) keep the given parametrization
-        symmetry, start_rotation = best.symmetry, best.rotation
-        second = apply_symmetry(second, symmetry)
+        starts = _close_starts(best_start(first, second, symmetries=symmetries), max_starts, start_margin)
         timings["search"] = time.perf_counter() - tic
-    objective = Objective(first, second, second_area)
     notify = callback or (lambda stage, iteration, e: None)
-    rotation, h = np.eye(3), objective.identity.copy()
-    energy_dp = float("nan")
-    history = []
-    if mode != "gd":
-        tic = time.perf_counter()
-        rotation, h, energy_dp = _dp_stage(objective, window, dp_rounds, mode == "auto", start_rotation)
-        history.append(energy_dp)
-        notify("dp", 0, energy_dp)
-        timings["dp"] = time.perf_counter() - tic
-    gd_path = None
-    if mode != "dp":
-        # descent on a grid of at most COARSE_NODES nodes per axis, then node refinement on the full grid
-        work, nodes = _coarse_objective(objective, first, second, second_area)
-        drive = _Descent(objective, work, descent, solver, refine, max_rounds, round_tol, notify)
-        if mode == "gd":
-            paths = _gd_paths(descent)
-            runs = [drive.from_identity(first, second, path["smoothing"], path["bases"]) for path in paths]
-            best = int(np.argmin([objective.energy(R, hh) for R, hh, _ in runs]))
-            rotation, h, history = runs[best]
-            gd_path = paths[best]
-        else:
-            h_start = _valid_start(objective, h)[np.ix_(*nodes)]
-            rotation, h = drive.run(rotation, h_start, [descent.basis], history)
-        timings.update(drive.timings)
-    energy = objective.energy(rotation, h)
-    h = symmetry_map(symmetry, h)
-    if not history:
-        history.append(energy)
+    settings = (mode, window, dp_rounds, descent, solver, refine, max_rounds, round_tol, notify)
+    runs = [_solve(first, apply_symmetry(second, s.symmetry), second_area, s.rotation, settings, timings) for s in starts]
+    # the lowest E after the basis descent wins, near ties (within SYMMETRY_MARGIN) going to the better-ranked
+    # start; only the winner is refined (on the paper's pairs and nearly symmetric meshes the order of the starts
+    # by this E was the order by their refined E, but for near ties)
+    lowest = min(run["energy"] for run in runs)
+    chosen = next(k for k, run in enumerate(runs) if run["energy"] <= (1.0 + SYMMETRY_MARGIN) * lowest + descent.abs_tol)
+    _polish(runs[chosen])
+    run, symmetry = runs[chosen], starts[chosen].symmetry
+    objective, rotation, energy = run["objective"], run["rotation"], run["energy"]
+    h = symmetry_map(symmetry, run["h"])
     timings["total"] = time.perf_counter() - start
     params = {
         "mode": mode,
@@ -312,7 +305,12 @@ def register(
         "smoothing": list(descent.smoothing),  # a list, as it reads back from result.npz's JSON
         "search": search,
         "symmetries": symmetries,
-        "gd_path": gd_path,
+        "gd_path": run["gd_path"],
+        "max_starts": max_starts,
+        "start_margin": start_margin,
+        "starts": [{"symmetry": st.symmetry, "coarse_energy": None if np.isnan(st.energy) else float(st.energy),
+                    "energy": float(r["energy"]), "refined": r is run}
+                   for st, r in zip(starts, runs)],
         "grid_first": list(objective.first.shape),
         "grid_second": list(objective.second.shape),
     }
@@ -320,8 +318,8 @@ def register(
         rotation=rotation,
         h=h,
         energy=energy,
-        energy_dp=energy_dp,
-        energy_history=np.array(history),
+        energy_dp=run["energy_dp"],
+        energy_history=np.array(run["history"]),
         r=objective.r,
         t=objective.t,
         mode=mode,
@@ -329,6 +327,67 @@ def register(
         timings=timings,
         symmetry=symmetry,
     )
+
+
+def _close_starts(starts: list[Start], max_starts: int, margin: float) -> list[Start]:
+    """The ranked starts worth a full registration: the best, then those whose coarse energy is within
+    ``margin`` of it (at most ``max_starts``). The identity symmetry goes first when it is within
+    SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given parametrization)."""
+    best = starts[0]
+    identity = next(s for s in starts if s.symmetry == 0)
+    if identity.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
+        starts = [identity] + [s for s in starts if s is not identity]
+    close = [s for s in starts if s.energy <= (1.0 + margin) * best.energy or s is starts[0]]
+    return close[: max(1, max_starts)]
+
+
+def _solve(first: GridSurface, second: GridSurface, second_area: float, start_rotation, settings, timings: dict) -> dict:
+    """The DP stage and the basis descent of one registration (``second`` already under its start's symmetry).
+
+    Mode "gd" runs its paths to the end here; otherwise :func:`_polish` runs the refinement. Stage times are
+    added to ``timings``. Returns a dict with objective, rotation, h (in ``second``'s parametrization; on
+    the work grid until polished), energy, energy_dp, history, gd_path and the descent driver (None once
+    nothing is left to do).
+    """
+    mode, window, dp_rounds, descent, solver, refine, max_rounds, round_tol, notify = settings
+    objective = Objective(first, second, second_area)
+    run = {"objective": objective, "rotation": np.eye(3), "h": objective.identity.copy(), "energy_dp": float("nan"),
+           "history": [], "gd_path": None, "drive": None}
+    if mode != "gd":
+        tic = time.perf_counter()
+        run["rotation"], run["h"], run["energy_dp"] = _dp_stage(objective, window, dp_rounds, mode == "auto", start_rotation)
+        run["history"].append(run["energy_dp"])
+        notify("dp", 0, run["energy_dp"])
+        timings["dp"] = timings.get("dp", 0.0) + time.perf_counter() - tic
+    if mode == "dp":
+        run["energy"] = objective.energy(run["rotation"], run["h"])
+        return run
+    # descent on a grid of at most COARSE_NODES nodes per axis, then node refinement on the full grid
+    work, nodes = _coarse_objective(objective, first, second, second_area)
+    drive = _Descent(objective, work, descent, solver, refine, max_rounds, round_tol, notify, timings)
+    if mode == "gd":
+        paths = _gd_paths(descent)
+        ends = [drive.from_identity(first, second, path["smoothing"], path["bases"]) for path in paths]
+        best = int(np.argmin([objective.energy(R, hh) for R, hh, _ in ends]))
+        run["rotation"], run["h"], run["history"] = ends[best]
+        run["gd_path"] = paths[best]
+        run["energy"] = objective.energy(run["rotation"], run["h"])
+        return run
+    h_start = _valid_start(objective, run["h"])[np.ix_(*nodes)]
+    run["rotation"], run["h"] = drive.descend(run["rotation"], h_start, [descent.basis], run["history"])
+    run["energy"] = work.energy(run["rotation"], run["h"])
+    run["drive"] = drive
+    return run
+
+
+def _polish(run: dict) -> dict:
+    """The refinement of a :func:`_solve` run (nothing when it is finished); ``run`` updated and returned."""
+    if run["drive"] is not None:
+        run["rotation"], run["h"] = run["drive"].polish(run["rotation"], run["h"], run["history"])
+        run["energy"] = run["objective"].energy(run["rotation"], run["h"])
+        run["drive"] = None
+    run["history"] = run["history"] or [run["energy"]]
+    return run
 
 
 def _coarse_objective(objective: Objective, first: GridSurface, second: GridSurface, second_area: float):
@@ -352,11 +411,14 @@ class _Descent:
     """Steps 2-3 of the outline on one pair: the basis descent, then the refinement levels, each alternated
     with Kabsch; ``timings`` adds up the seconds per stage over every call."""
 
-    def __init__(self, objective, work, params, solver, refine, max_rounds, round_tol, notify):
+    def __init__(self, objective, work, params, solver, refine, max_rounds, round_tol, notify, timings: dict):
         self.objective, self.work, self.params = objective, work, params
         self.step = descend if solver == "gradient" else gauss_newton
         self.refine, self.rounds, self.notify = refine, (max_rounds, round_tol), notify
-        self.timings = {"gd": 0.0, **({"refine": 0.0} if refine == "nodes" else {})}
+        self.timings = timings
+
+    def _clock(self, stage: str, tic: float) -> None:
+        self.timings[stage] = self.timings.get(stage, 0.0) + time.perf_counter() - tic
 
     @staticmethod
     def _track(stage, history, notify):
@@ -372,15 +434,28 @@ class _Descent:
         return rotation, h
 
     def run(self, rotation, h, bases, history):
-        """Descend from (R, h) (h at the work grid's nodes), refine; E on the full grid appended to ``history``.
+        """:meth:`descend`, then :meth:`polish`."""
+        rotation, h = self.descend(rotation, h, bases, history)
+        return self.polish(rotation, h, history)
+
+    def descend(self, rotation, h, bases, history):
+        """Descend from (R, h) on the work grid (h at its nodes) in the Riseth bases KL in ``bases``.
+
+        E is appended to ``history`` when the work grid is the full grid. Returns R and h on the work grid.
+        """
+        tic = time.perf_counter()
+        work_history = history if self.work is self.objective else []
+        rotation, h = self._bases(self.work, rotation, h, bases, work_history, self.notify)
+        self._clock("gd", tic)
+        return rotation, h
+
+    def polish(self, rotation, h, history):
+        """The refinement levels from (R, h) on the work grid; E on the full grid appended to ``history``.
 
         Returns R and h at the full grid's nodes.
         """
         objective, work, descent = self.objective, self.work, self.params
-        tic = time.perf_counter()
         work_history = history if work is objective else []
-        rotation, h = self._bases(work, rotation, h, bases, work_history, self.notify)
-        self.timings["gd"] += time.perf_counter() - tic
         if self.refine == "none":
             if work is not objective:
                 h = _upsample(h, work, objective)
@@ -399,7 +474,7 @@ class _Descent:
             cap = descent.refine_iterations if target is work else descent.fine_iterations
             params = replace(descent, max_iterations=min(descent.max_iterations, cap), rel_tol=descent.refine_rel_tol)
             rotation, h = _alternate(target, rotation, h, stage, params, *self.rounds, hist, self._track("refine", hist, self.notify), self.notify)
-        self.timings["refine"] += time.perf_counter() - tic
+        self._clock("refine", tic)
         return rotation, h
 
     def from_identity(self, first: GridSurface, second: GridSurface, sigmas, bases):
@@ -423,7 +498,7 @@ class _Descent:
             rotation, h = self._bases(level, rotation, h, bases, [], relabel)
             previous = level
         if sigmas:
-            self.timings["smoothing"] = self.timings.get("smoothing", 0.0) + time.perf_counter() - tic
+            self._clock("smoothing", tic)
         h = work.identity.copy() if h is None else _valid_start(work, _upsample(h, previous, work))
         history = []
         rotation, h = self.run(rotation, h, bases, history)

@@ -97,3 +97,11 @@ def test_gd_scale_space_options_reach_the_result(grid_files, tmp_path):
                                    {"smoothing": [0.2, 0.1], "bases": [2, 5]})
     assert b.params["smoothing"] == [] and b.params["gd_path"]["smoothing"] == []
     assert "smoothing" in a.timings and "smoothing" not in b.timings
+
+
+def test_max_starts_option(grid_files, tmp_path):
+    args = ["register", str(grid_files / "first.npy"), str(grid_files / "second.npy"), "-q"]
+    assert main(args + ["-o", str(tmp_path / "one"), "--max-starts", "1"]) == 0
+    one = Registration.load(tmp_path / "one" / "result.npz")
+    assert one.params["max_starts"] == 1 and len(one.params["starts"]) == 1
+    assert main(args + ["-o", str(tmp_path / "zero"), "--max-starts", "0"]) == 2
