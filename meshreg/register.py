@@ -338,7 +338,7 @@ def _close_starts(starts: list[Start], max_starts: int, margin: float) -> list[S
     if identity.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
         starts = [identity] + [s for s in starts if s is not identity]
     close = [s for s in starts if s.energy <= (1.0 + margin) * best.energy or s is starts[0]]
-    return close[: max(1, max_starts)]
+    return close[:max_starts]
 
 
 def _solve(first: GridSurface, second: GridSurface, second_area: float, start_rotation, settings, timings: dict) -> dict:
@@ -368,10 +368,10 @@ def _solve(first: GridSurface, second: GridSurface, second_area: float, start_ro
     if mode == "gd":
         paths = _gd_paths(descent)
         ends = [drive.from_identity(first, second, path["smoothing"], path["bases"]) for path in paths]
-        best = int(np.argmin([objective.energy(R, hh) for R, hh, _ in ends]))
+        energies = [objective.energy(R, hh) for R, hh, _ in ends]
+        best = int(np.argmin(energies))
         run["rotation"], run["h"], run["history"] = ends[best]
-        run["gd_path"] = paths[best]
-        run["energy"] = objective.energy(run["rotation"], run["h"])
+        run["gd_path"], run["energy"] = paths[best], energies[best]
         return run
     h_start = _valid_start(objective, run["h"])[np.ix_(*nodes)]
     run["rotation"], run["h"] = drive.descend(run["rotation"], h_start, [descent.basis], run["history"])
@@ -454,28 +454,28 @@ class _Descent:
 
         Returns R and h at the full grid's nodes.
         """
-        objective, work, descent = self.objective, self.work, self.params
-        work_history = history if work is objective else []
-        if self.refine == "none":
-            if work is not objective:
-                h = _upsample(h, work, objective)
-                history.append(objective.energy(rotation, h))
-            return rotation, h
+        objective, work = self.objective, self.work
         tic = time.perf_counter()
-        levels = [(bspline_basis(k, work.r, work.t), False, work) for k in REFINE_KNOTS if k < min(work.first.shape) // 2]
-        levels.append((None, True, objective))
-        for fields, additive, target in levels:
-            if target is not work and work is not objective:
-                h = _upsample(h, work, objective)
-                history.append(objective.energy(rotation, h))
-            fields = fields or node_basis(target.r, target.t)
-            hist = history if target is objective else work_history
-            stage = lambda o, R, hh, p, cb, f=fields, a=additive: gauss_newton(o, R, hh, p, f, cb, additive=a)  # noqa: E731
-            cap = descent.refine_iterations if target is work else descent.fine_iterations
-            params = replace(descent, max_iterations=min(descent.max_iterations, cap), rel_tol=descent.refine_rel_tol)
-            rotation, h = _alternate(target, rotation, h, stage, params, *self.rounds, hist, self._track("refine", hist, self.notify), self.notify)
-        self._clock("refine", tic)
+        if self.refine == "nodes":
+            work_history = history if work is objective else []
+            for k in REFINE_KNOTS:
+                if k < min(work.first.shape) // 2:
+                    rotation, h = self._refine(work, bspline_basis(k, work.r, work.t), False, rotation, h, work_history)
+        if work is not objective:
+            h = _upsample(h, work, objective)
+            history.append(objective.energy(rotation, h))
+        if self.refine == "nodes":
+            rotation, h = self._refine(objective, node_basis(objective.r, objective.t), True, rotation, h, history)
+            self._clock("refine", tic)
         return rotation, h
+
+    def _refine(self, target, fields, additive, rotation, h, history):
+        """One refinement level: Gauss-Newton in ``fields`` on ``target``, alternated with Kabsch."""
+        descent = self.params
+        stage = lambda o, R, hh, p, cb: gauss_newton(o, R, hh, p, fields, cb, additive=additive)  # noqa: E731
+        cap = descent.refine_iterations if target is self.work else descent.fine_iterations
+        params = replace(descent, max_iterations=min(descent.max_iterations, cap), rel_tol=descent.refine_rel_tol)
+        return _alternate(target, rotation, h, stage, params, *self.rounds, history, self._track("refine", history, self.notify), self.notify)
 
     def from_identity(self, first: GridSurface, second: GridSurface, sigmas, bases):
         """Mode "gd": from R = I and h = id through the smoothed pairs ``sigmas``, then :meth:`run`.
@@ -487,22 +487,28 @@ class _Descent:
         -------
         rotation, h, history
         """
-        work = self.work
         rotation, h, previous = np.eye(3), None, None
         tic = time.perf_counter()
         relabel = lambda stage, i, e: self.notify("smoothing", i, e)  # noqa: E731
         for sigma in sigmas:
             n = level_nodes(sigma, COARSE_NODES)
             level = Objective(smoothed(first, sigma, n), smoothed(second, sigma, n))
-            h = level.identity.copy() if h is None else _valid_start(level, _upsample(h, previous, level))
+            h = _carried(h, previous, level)
             rotation, h = self._bases(level, rotation, h, bases, [], relabel)
             previous = level
         if sigmas:
             self._clock("smoothing", tic)
-        h = work.identity.copy() if h is None else _valid_start(work, _upsample(h, previous, work))
         history = []
-        rotation, h = self.run(rotation, h, bases, history)
+        rotation, h = self.run(rotation, _carried(h, previous, self.work), bases, history)
         return rotation, h, history
+
+
+def _carried(h, previous: Objective | None, target: Objective) -> np.ndarray:
+    """A descent start on ``target``: h from ``previous``'s grid upsampled and made valid, or the identity
+    when there is no h yet."""
+    if h is None:
+        return target.identity.copy()
+    return _valid_start(target, _upsample(h, previous, target))
 
 
 def _gd_paths(descent: DescentParams) -> list[dict]:

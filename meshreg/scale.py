@@ -51,11 +51,11 @@ def smoothed(surface: GridSurface, sigma: float, nodes: int) -> GridSurface:
     >>> bool(wave < 0.5 * np.ptp(flat.points[..., 0]))
     True
     """
-    points = resample(surface, nodes, nodes).points
-    spacing = 1.0 / (nodes - 1)
+    uniform = resample(surface, nodes, nodes)
+    points = uniform.points
     for axis in (0, 1):
-        points = _blur(points, sigma / spacing, axis)
-    return GridSurface(points, np.linspace(0, 1, nodes), np.linspace(0, 1, nodes))
+        points = _blur(points, sigma * (nodes - 1), axis)
+    return GridSurface(points, uniform.r, uniform.t)
 
 
 def _blur(points: np.ndarray, sigma_nodes: float, axis: int) -> np.ndarray:
