@@ -27,7 +27,10 @@ def main():
     warm = paper_pairs(21, 21)[0]
     for mode in args.modes:
         meshreg.register(warm.first, warm.second, mode=mode)
-    print(f"machine: {platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, "
+        f"{platform.python_implementation()} {platform.python_version()}"
+    )
     print("| grid | pair | mode | dp s | gd s | refine s | total s | E |")
     print("|---|---|---|---|---|---|---|---|")
     for m in args.grids:
@@ -41,7 +44,10 @@ def main():
                 wall = time.perf_counter() - tic
                 t = result.timings
                 cells = [f"{t[k]:.2f}" if k in t else "-" for k in ("dp", "gd", "refine")]
-                print(f"| {m}x{m} | {pair.name} | {mode} | {' | '.join(cells)} | {wall:.2f} | {result.energy:.3g} |", flush=True)
+                print(
+                    f"| {m}x{m} | {pair.name} | {mode} | {' | '.join(cells)} | {wall:.2f} | {result.energy:.3g} |",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

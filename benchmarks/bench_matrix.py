@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 import meshreg
-from meshreg.samples import bump, cos_sin, helicoid, sample, saddle, sine, terrain, warp, wave
+from meshreg.samples import bump, cos_sin, helicoid, saddle, sample, sine, terrain, warp, wave
 
 
 def collection(n: int, size: int):
@@ -32,7 +32,10 @@ def main():
     from distributed import Client, LocalCluster
 
     meshreg.distance_matrix(collection(2, 21), jobs=1)  # compile / load the numba kernels
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}"
+    )
     print("| grid | backend | pairs | seconds | pairs/s | median E |")
     print("|---|---|---|---|---|---|")
     for size in args.grids:
@@ -41,7 +44,12 @@ def main():
         for label, kwargs in runs + [("Dask, 2 workers", None)]:
             tic = time.perf_counter()
             if kwargs is None:
-                with LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None) as cluster, Client(cluster) as client:
+                with (
+                    LocalCluster(
+                        n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None
+                    ) as cluster,
+                    Client(cluster) as client,
+                ):
                     tic = time.perf_counter()  # cluster start-up not counted
                     result = meshreg.distance_matrix(grids, client=client)
             else:
@@ -49,7 +57,10 @@ def main():
             seconds = time.perf_counter() - tic
             pairs = len(grids) * (len(grids) - 1) // 2
             energy = np.median(result.energy[np.triu_indices(len(grids), 1)])
-            print(f"| {size}x{size} | {label} | {pairs} | {seconds:.1f} | {pairs / seconds:.2f} | {energy:.3g} |", flush=True)
+            print(
+                f"| {size}x{size} | {label} | {pairs} | {seconds:.1f} | {pairs / seconds:.2f} | {energy:.3g} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

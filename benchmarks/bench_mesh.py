@@ -41,7 +41,10 @@ def main():
         b = random_disk_mesh(surface, nf // 2, seed=3, rotation=Rotation.random(random_state=4).as_matrix(), scale=2.0)
         t0 = time.perf_counter()
         mr = register_meshes(a[:2], b[:2])
-        print(f"register two meshes of {len(a[1])} and {len(b[1])} faces: {time.perf_counter() - t0:.2f} s, E = {mr.result.energy:.3g}")
+        print(
+            f"register two meshes of {len(a[1])} and {len(b[1])} faces: {time.perf_counter() - t0:.2f} s, "
+            f"E = {mr.result.energy:.3g}"
+        )
 
 
 if __name__ == "__main__":

@@ -38,7 +38,10 @@ def main():
                 continue
             ob = Objective(pair.first, pair.second)
             h = pair.h_true(ob.identity[..., 0], ob.identity[..., 1])
-            print(f"| {m} | {pair.name} | {ob.energy(pair.rotation, h):.2e} | {energy_by_q_interpolation(ob, pair.rotation, h):.2e} |")
+            print(
+                f"| {m} | {pair.name} | {ob.energy(pair.rotation, h):.2e} "
+                f"| {energy_by_q_interpolation(ob, pair.rotation, h):.2e} |"
+            )
 
 
 if __name__ == "__main__":

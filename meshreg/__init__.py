@@ -8,10 +8,25 @@
 [[0, 1, 0], [0, 0, 1], [1, 0, 0]]
 """
 
+from .batch import DistanceMatrix, distance_matrix
 from .errors import InputError
 from .grid import GridSurface, read_grid
-from .batch import DistanceMatrix, distance_matrix
-from .register import MODES, Registration, register, register_symmetric
+from .options import MODES, Advanced, Options
+from .register import register, register_symmetric, register_with
+from .result import Registration
 
-__all__ = ["DistanceMatrix", "GridSurface", "InputError", "MODES", "Registration", "read_grid", "register", "register_symmetric", "distance_matrix"]
+__all__ = [
+    "MODES",
+    "Advanced",
+    "DistanceMatrix",
+    "GridSurface",
+    "InputError",
+    "Options",
+    "Registration",
+    "distance_matrix",
+    "read_grid",
+    "register",
+    "register_symmetric",
+    "register_with",
+]
 __version__ = "0.1.0"

@@ -19,13 +19,15 @@ import os
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
 from .grid import GridSurface, read_grid
-from .register import register
+from .options import Options
+from .register import register_with
 
 CHECKPOINT_SUFFIX = ".checkpoint.jsonl"
 
@@ -40,12 +42,11 @@ class Prepared:
     placements: list = field(default_factory=list)  # a round-boundary mesh: its grids for other corner placements
 
 
-def prepare_surface(item, name: str | None = None, *, resolution: int = 101, weights: str = "mean-value",
-                    cleanup: bool = True, corner_search: int = 8) -> Prepared:
+def prepare_surface(item, name: str | None = None, options: Options | None = None) -> Prepared:
     """Read and prepare one surface: a GridSurface, an (M, N, 3) array, a (vertices, faces) pair, or a path to a
-    grid file or a mesh (see :func:`meshreg.mesh.correspond.mesh_grids`: a mesh without four clear corners
-    keeps its grids for ``corner_search`` corner placements). Errors (unreadable file, not a disk, ...) are
-    returned in ``error``, not raised."""
+    grid file or a mesh (see :func:`meshreg.mesh.corners.mesh_grids`: a mesh without four clear corners
+    keeps its grids for ``options.corner_search`` corner placements). Errors (unreadable file, not a disk, ...)
+    are returned in ``error``, not raised."""
     from .mesh.topology import MESH_SUFFIXES
 
     name = name or (str(item) if isinstance(item, (str, Path)) else "surface")
@@ -59,16 +60,16 @@ def prepare_surface(item, name: str | None = None, *, resolution: int = 101, wei
 
             item = load_mesh(item)
         if isinstance(item, tuple):
-            from .mesh.correspond import mesh_grids
+            from .mesh.corners import mesh_grids
 
-            grids, _ = mesh_grids(*item, grid=resolution, weights=weights, cleanup=cleanup, corner_search=corner_search)
+            grids, _ = mesh_grids(*item, options or Options())
             return Prepared(name, grids[0], placements=grids[1:])
         return Prepared(name, GridSurface.from_array(item))
     except InputError as err:
         return Prepared(name, None, str(err))
 
 
-def register_pair(first: GridSurface, second: GridSurface | list, params: dict) -> dict:
+def register_pair(first: GridSurface, second: GridSurface | list, options: Options) -> dict:
     """One pair's numbers: energy, rotation (3 x 3 list), seconds (and the chosen corner placement when
     ``second`` is a list of a round-boundary mesh's placements, ranked as in ``meshreg register``). Runs in
     a worker process.
@@ -82,16 +83,17 @@ def register_pair(first: GridSurface, second: GridSurface | list, params: dict) 
     record = {}
     with threadpool_limits(1):
         if isinstance(second, list):
-            from .mesh.correspond import CORNER_SEARCH_GRID, placement_energy
-            from .search import resample
+            from .mesh.corners import best_placement
 
-            n = CORNER_SEARCH_GRID
-            coarse = resample(first.scaled(), n, n)
-            ranks = [placement_energy(coarse, resample(g.scaled(), n, n)) for g in second]
-            record["placement"] = int(np.argmin(ranks))
+            record["placement"] = best_placement(first, second)
             second = second[record["placement"]]
-        result = register(first, second, **params)
-    return {"energy": result.energy, "rotation": result.rotation.tolist(), "seconds": time.perf_counter() - tic, **record}
+        result = register_with(first, second, options)
+    return {
+        "energy": result.energy,
+        "rotation": result.rotation.tolist(),
+        "seconds": time.perf_counter() - tic,
+        **record,
+    }
 
 
 @dataclass
@@ -128,19 +130,34 @@ class DistanceMatrix:
         path = Path(path)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
         failures = [f"{i} {j} {reason}" for (i, j), reason in sorted(self.failures.items())]
-        np.savez(tmp, distance=self.distance, energy=self.energy, files=np.array(self.names), rotations=self.rotations,
-                 seconds=self.seconds, failures=np.array(failures, dtype=str), params=json.dumps(self.params))
+        np.savez(
+            tmp,
+            distance=self.distance,
+            energy=self.energy,
+            files=np.array(self.names),
+            rotations=self.rotations,
+            seconds=self.seconds,
+            failures=np.array(failures, dtype=str),
+            params=json.dumps(self.params),
+        )
         os.replace(tmp, path)
 
     @classmethod
-    def load(cls, path) -> "DistanceMatrix":
+    def load(cls, path) -> DistanceMatrix:
         with np.load(path) as data:
             failures = {}
             for line in data["failures"].tolist():
                 i, j, reason = line.split(" ", 2)
                 failures[int(i), int(j)] = reason
-            return cls(data["files"].tolist(), data["distance"], data["energy"], data["rotations"], data["seconds"],
-                       failures, json.loads(str(data["params"])))
+            return cls(
+                data["files"].tolist(),
+                data["distance"],
+                data["energy"],
+                data["rotations"],
+                data["seconds"],
+                failures,
+                json.loads(str(data["params"])),
+            )
 
 
 class Checkpoint:
@@ -154,8 +171,10 @@ class Checkpoint:
             lines = self.path.read_text().splitlines()
             header = _json_or_none(lines[0]) if lines else None
             if header is None or header.get("key") != key:
-                raise InputError(f"{self.path} is a checkpoint of another run (other inputs or parameters): "
-                                 "delete it or write the matrix elsewhere")
+                raise InputError(
+                    f"{self.path} is a checkpoint of another run (other inputs or parameters): "
+                    "delete it or write the matrix elsewhere"
+                )
             for line in lines[1:]:
                 record = _json_or_none(line)  # a line cut by a kill is skipped: that pair is redone
                 if record is not None:
@@ -193,17 +212,13 @@ def _run_key(names, grids, params) -> str:
 
 def distance_matrix(
     surfaces,
+    options: Options | None = None,
     *,
     names=None,
     client=None,
     jobs: int | None = None,
     checkpoint=None,
-    resolution: int = 101,
-    weights: str = "mean-value",
-    cleanup: bool = True,
-    corner_search: int = 8,
     progress=None,
-    **params,
 ) -> DistanceMatrix:
     """All pairwise elastic distances of a collection.
 
@@ -211,6 +226,9 @@ def distance_matrix(
     ----------
     surfaces : sequence
         GridSurfaces, (M, N, 3) arrays, (vertices, faces) pairs, or paths of grid files or meshes.
+    options : Options, optional
+        How meshes become grids (``resolution``, ``weights``, ``cleanup``, ``corner_search``) and how every pair
+        is registered (default mode "auto").
     names : list of str, optional
         Labels (default: the paths, else "surface i").
     client : dask.distributed.Client, optional
@@ -219,12 +237,8 @@ def distance_matrix(
         Processes of the local pool (default: the machine's cores; 1 runs in this process).
     checkpoint : path, optional
         JSON-lines file recording each finished pair; an existing one for the same run is resumed.
-    resolution, weights, cleanup, corner_search
-        How meshes become grids (see :func:`meshreg.mesh.correspond.mesh_grids`).
     progress : callable, optional
         ``progress(done, total)`` after every finished pair (and once at the start).
-    **params
-        Passed to :func:`meshreg.register` for every pair (default mode "auto").
 
     Returns
     -------
@@ -244,9 +258,9 @@ def distance_matrix(
         raise InputError("a distance matrix needs at least 2 surfaces")
     if names is None:
         names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
-    prep = {"resolution": resolution, "weights": weights, "cleanup": cleanup, "corner_search": corner_search}
-    prepared = [prepare_surface(x, nm, **prep) for x, nm in zip(items, names)]
-    run_params = {**params, **prep}
+    options = options or Options()
+    prepared = [prepare_surface(x, nm, options) for x, nm in zip(items, names, strict=True)]
+    run_params = options.as_dict()
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     store = Checkpoint(checkpoint, _run_key(names, [p.grid for p in prepared], run_params)) if checkpoint else None
     done = dict(store.done) if store else {}
@@ -271,9 +285,9 @@ def distance_matrix(
             todo.append((i, j))
     try:
         if client is not None:
-            _run_dask(client, prepared, todo, params, finish)
+            _run_dask(client, prepared, todo, options, finish)
         else:
-            _run_local(prepared, todo, params, finish, jobs or os.cpu_count() or 1)
+            _run_local(prepared, todo, options, finish, jobs or os.cpu_count() or 1)
     finally:
         if store:
             store.close()
@@ -295,13 +309,15 @@ def _seconds(p: Prepared):
     return [p.grid, *p.placements] if p.placements else p.grid
 
 
-def _run_local(prepared, todo, params, finish, jobs: int) -> None:
+def _run_local(prepared, todo, options: Options, finish, jobs: int) -> None:
     if jobs <= 1:
         for i, j in todo:
-            finish(i, j, _outcome(lambda: register_pair(prepared[i].grid, _seconds(prepared[j]), params)))
+            finish(i, j, _outcome(partial(register_pair, prepared[i].grid, _seconds(prepared[j]), options)))
         return
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        running = {pool.submit(register_pair, prepared[i].grid, _seconds(prepared[j]), params): (i, j) for i, j in todo}
+        running = {
+            pool.submit(register_pair, prepared[i].grid, _seconds(prepared[j]), options): (i, j) for i, j in todo
+        }
         try:
             while running:
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -313,13 +329,13 @@ def _run_local(prepared, todo, params, finish, jobs: int) -> None:
             raise
 
 
-def _run_dask(client, prepared, todo, params, finish) -> None:
+def _run_dask(client, prepared, todo, options, finish) -> None:
     from distributed import as_completed
 
     used = {k for pair in todo for k in pair}
     firsts = {k: client.scatter(prepared[k].grid) for k in used}
     seconds = {k: client.scatter(_seconds(prepared[k])) for k in used}
-    futures = {client.submit(register_pair, firsts[i], seconds[j], params, pure=False): (i, j) for i, j in todo}
+    futures = {client.submit(register_pair, firsts[i], seconds[j], options, pure=False): (i, j) for i, j in todo}
     try:
         for future in as_completed(futures):
             i, j = futures[future]
@@ -350,13 +366,59 @@ def _assemble(names, done: dict, params: dict) -> DistanceMatrix:
     return DistanceMatrix(list(names), np.sqrt(np.maximum(energy, 0.0)), energy, rotations, seconds, failures, params)
 
 
-def classical_mds(distance: np.ndarray, dims: int = 2) -> np.ndarray:
-    """Classical (Torgerson) multidimensional scaling: points (N, dims) whose Euclidean distances best match
-    ``distance`` (N, N) (failed pairs, NaN, are set to the largest finite distance)."""
-    d = np.where(np.isfinite(distance), distance, np.nanmax(distance))
-    n = len(d)
-    centre = np.eye(n) - 1.0 / n
-    b = -0.5 * centre @ (d**2) @ centre
-    vals, vecs = np.linalg.eigh(b)
-    top = np.argsort(vals)[::-1][:dims]
-    return vecs[:, top] * np.sqrt(np.maximum(vals[top], 0.0))
+def matrix_files(
+    files,
+    out,
+    options: Options | None = None,
+    *,
+    jobs: int | None = None,
+    scheduler: str | None = None,
+    plot: bool = False,
+    progress=None,
+):
+    """``meshreg matrix``: the distance matrix of files, checkpointed beside ``out`` (``.npz``) and resumed from
+    there, written atomically; with ``plot`` also ``out`` with suffix ``.png``. ``scheduler`` is the address of
+    a dask.distributed scheduler (default: the local process pool of ``jobs`` processes).
+
+    Returns the DistanceMatrix and the figure's path (None without ``plot``).
+    """
+    files, out = [Path(f) for f in files], Path(out)
+    if out.suffix != ".npz":
+        raise InputError(f"{out}: the matrix file must end in .npz")
+    if any(out.resolve() == f.resolve() for f in files):
+        raise InputError(f"{out} is one of the inputs: choose another output file")
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise InputError(f"no such file: {', '.join(missing)}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    client = _client(scheduler) if scheduler else None
+    checkpoint = out.with_name(out.name + CHECKPOINT_SUFFIX)
+    try:
+        result = distance_matrix(files, options, client=client, jobs=jobs, checkpoint=checkpoint, progress=progress)
+    except KeyboardInterrupt:
+        raise InputError(
+            f"interrupted: finished pairs are kept in {checkpoint}; rerun the same command to resume"
+        ) from None
+    finally:
+        if client is not None:
+            client.close()
+    result.save(out)
+    checkpoint.unlink(missing_ok=True)
+    figure = None
+    if plot:
+        from .viz import classical_mds, plot_matrix
+
+        figure = plot_matrix(result.names, result.distance, classical_mds(result.distance), out.with_suffix(".png"))
+    return result, figure
+
+
+def _client(scheduler: str):
+    """A dask.distributed Client of the scheduler at ``scheduler``."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise InputError("--scheduler needs dask.distributed: pip install 'meshreg[dask]'") from None
+    try:
+        return Client(scheduler, timeout="20s")
+    except (OSError, TimeoutError) as err:
+        raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from None

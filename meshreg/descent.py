@@ -15,22 +15,21 @@ Riseth, "Elastic shape analysis of surfaces" (the basis).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
-
 import scipy.linalg
 import scipy.sparse as sp
-from scipy.spatial.transform import Rotation
 import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
+from scipy.spatial.transform import Rotation
 
 from .diffeo import enforce_boundary, is_valid
 from .fields import TensorBasis, riseth_basis
 from .objective import Objective
+from .options import StepParams
 from .spline import GridInterpolator
 
-DEFAULT_BASIS = 5
 DENSE_LIMIT = 2000
 _UNIT_R = np.array([1.0, 0.0])
 _UNIT_T = np.array([0.0, 1.0])
@@ -69,70 +68,6 @@ def max_step(jac: np.ndarray) -> float:
     return float(bound.min())
 
 
-@dataclass(frozen=True)
-class DescentParams:
-    """Numerical parameters of the gradient descent.
-
-    Attributes
-    ----------
-    basis : int
-        KL; the gradient is expanded in 2 (KL + 2 KL^2) fields. Default 5 (110 fields).
-    max_iterations : int
-        Most descent iterations per round (between two Kabsch steps). Default 200.
-    rel_tol : float
-        A round stops when an iteration lowers E by less than ``rel_tol * E + abs_tol``. Default 1e-3.
-    abs_tol : float
-        See ``rel_tol``. Default 1e-9 (E itself is only accurate to about 1e-9 on 101 x 101 grids:
-        with the exact h, the paper's same-shape pairs give E = 4e-10 to 2e-9).
-    grad_tol : float
-        A round stops when the L^2 norm of the gradient is below this. Default 1e-10.
-    zero_energy : float
-        E at or below this is "equal or close to zero": stop. Default 1e-10.
-    step_fraction : float
-        delta starts at this fraction of the Jacobian/Gale-Nikaido bound. Default 0.5.
-    max_backtracks : int
-        Most halvings of delta (or increases of the damping) in one iteration before the round
-        stops. Default 30.
-    damping : float
-        Initial Levenberg-Marquardt damping of :func:`gauss_newton`. Default 1e-3.
-    cg_iterations : int
-        Most conjugate-gradient iterations for a Gauss-Newton step in a local basis. Default 100.
-    refine_iterations : int
-        Most iterations per round of each refinement level (B-spline and node bases). Default 10.
-    fine_iterations : int
-        On grids larger than the coarse-to-fine limit (101 nodes per axis), most node-refinement
-        iterations on the full grid after the descent on the coarse one. Default 5.
-    refine_rel_tol : float
-        ``rel_tol`` of the refinement levels: a level stops once an iteration lowers E by less than this
-        fraction. Default 1e-2: on the paper's different-shape pairs the levels otherwise spent 2/3 of the
-        time on 0.2% steps; same-shape pairs, whose E falls by orders of magnitude, are not affected.
-    start_basis : int
-        Mode "gd" also runs a descent from the identity that first moves in the basis with
-        KL = ``start_basis``, then KL = ``basis``: large smooth moves before the finer fields. Default 3;
-        ``start_basis >= basis`` turns this path off.
-    smoothing : tuple of float
-        Mode "gd" also descends through this Gaussian scale space of both surfaces (standard deviations in
-        units of the unit square's side, largest first; see :mod:`meshreg.scale`) before the original pair.
-        Default (0.1,); () turns this path off. Mode "gd" keeps whichever of its paths ends at the lower E.
-    """
-
-    basis: int = DEFAULT_BASIS
-    max_iterations: int = 200
-    rel_tol: float = 1e-3
-    abs_tol: float = 1e-9
-    grad_tol: float = 1e-10
-    zero_energy: float = 1e-10
-    step_fraction: float = 0.5
-    max_backtracks: int = 30
-    damping: float = 1e-3
-    cg_iterations: int = 100
-    refine_iterations: int = 10
-    fine_iterations: int = 5
-    refine_rel_tol: float = 1e-2
-    start_basis: int = 3
-    smoothing: tuple[float, ...] = (0.1,)
-
-
 @dataclass
 class DescentState:
     """h, its energy, the rotation (when the solver moves it) and the accepted energies."""
@@ -144,7 +79,7 @@ class DescentState:
     iterations: int = 0
 
 
-def _accept(state: DescentState, h, rotation, energy: float, params: DescentParams, callback) -> bool:
+def _accept(state: DescentState, h, rotation, energy: float, params: StepParams, callback) -> bool:
     """Record an accepted step; True when the decrease was too small to go on."""
     previous = state.energy
     state.h, state.rotation, state.energy = h, rotation, energy
@@ -159,7 +94,7 @@ def descend(
     objective: Objective,
     rotation: np.ndarray,
     h: np.ndarray,
-    params: DescentParams = DescentParams(),
+    params: StepParams | None = None,
     basis: TensorBasis | None = None,
     callback: Callable[[int, float], None] | None = None,
 ) -> DescentState:
@@ -171,7 +106,7 @@ def descend(
     rotation : ndarray, shape (3, 3)
     h : ndarray, shape (M, N, 2)
         Starting reparametrization h^(0) (valid).
-    params : DescentParams
+    params : StepParams
     basis : TensorBasis, optional
         The fields to descend along; default the Riseth basis with KL = ``params.basis``.
     callback : callable, optional
@@ -182,6 +117,7 @@ def descend(
     DescentState
         The last h, E(h, R) (never above the starting E) and the accepted energies.
     """
+    params = params or StepParams()
     basis = basis or riseth_basis(params.basis, objective.r, objective.t)
     ident = objective.identity
     state = DescentState(h.copy(), objective.energy(rotation, h))
@@ -219,7 +155,7 @@ def gauss_newton(
     objective: Objective,
     rotation: np.ndarray,
     h: np.ndarray,
-    params: DescentParams = DescentParams(),
+    params: StepParams | None = None,
     basis: TensorBasis | None = None,
     callback: Callable[[int, float], None] | None = None,
     additive: bool = False,
@@ -241,6 +177,7 @@ def gauss_newton(
     DescentState
         With ``rotation`` set to the final R.
     """
+    params = params or StepParams()
     basis = basis or riseth_basis(params.basis, objective.r, objective.t)
     fields = basis.matrix()
     ident = objective.identity
@@ -302,7 +239,9 @@ def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, se
     else:
         fr, top, g_fields = fields.T @ nr, fields.T @ (nn @ fields), fields.T @ g_nodes
     rhs = -np.concatenate([g_fields, rot_jac.T @ res])
-    normal = sp.bmat([[top, sp.csr_matrix(fr)], [sp.csr_matrix(fr.T), sp.csr_matrix(rot_jac.T @ rot_jac)]], format="csr")
+    normal = sp.bmat(
+        [[top, sp.csr_matrix(fr)], [sp.csr_matrix(fr.T), sp.csr_matrix(rot_jac.T @ rot_jac)]], format="csr"
+    )
     return normal, rhs
 
 

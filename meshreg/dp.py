@@ -5,7 +5,7 @@ R^(3(N-1)) (the columns of q), which dynamic programming minimizes exactly over 
 gamma whose pieces join grid nodes with steps (dk, dl), 1 <= dk, dl <= W, gcd(dk, dl) = 1.
 The DP alternates with Kabsch-Umeyama, starting from Kabsch at the identity gamma.
 
-Specification: ``dp_surface_min.md`` (exact edge costs over merged breakpoints; constant terms of
+Specification: docs/dp.md (exact edge costs over merged breakpoints; constant terms of
 E are dropped so the DP maximizes the cross term ``sum len sqrt(m) trace(R C[a][b])``).
 
 References

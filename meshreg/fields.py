@@ -100,7 +100,8 @@ def _fourier(x: np.ndarray, kl: int):
 
 
 def riseth_basis(kl: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
-    """The paper's basis truncated at KL: first components sqrt2 sin(pi k r) psi_l(t), second sqrt2 sin(pi k t) psi_l(r).
+    """The paper's basis truncated at KL: first components sqrt2 sin(pi k r) psi_l(t), second sqrt2 sin(pi k t)
+    psi_l(r).
 
     psi_l ranges over 1, sqrt2 cos(2 pi l x), sqrt2 sin(2 pi l x), l = 1..KL.
 

@@ -16,11 +16,13 @@ File formats read by :func:`read_grid`:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .spline import GridInterpolator
 
 MIN_NODES = 3
 
@@ -69,7 +71,7 @@ class GridSurface:
     t: np.ndarray
 
     @classmethod
-    def from_array(cls, points, r=None, t=None) -> "GridSurface":
+    def from_array(cls, points, r=None, t=None) -> GridSurface:
         """Validate ``points`` (M, N, 3) and optional partitions; rescale partitions to [0, 1].
 
         Raises
@@ -106,13 +108,40 @@ class GridSurface:
         a2 = np.linalg.norm(np.cross(c10 - c00, c11 - c00), axis=-1)
         return 0.5 * float(np.sum(a1) + np.sum(a2))
 
-    def scaled(self) -> "GridSurface":
+    def scaled(self) -> GridSurface:
         """The surface divided by sqrt(area), so that its area is 1."""
         return GridSurface(self.points / np.sqrt(self.area()), self.r, self.t)
+
+    @cached_property
+    def interpolator(self) -> GridInterpolator:
+        """The bicubic interpolant of the points (made once per surface)."""
+        return GridInterpolator(self.points, self.r, self.t)
+
+    def at(self, h: np.ndarray) -> np.ndarray:
+        """The surface at a reparametrization: c(h(...)) for h of shape (..., 2) in [0, 1]^2, shape (..., 3).
+
+        This is the one way meshreg evaluates a surface between its nodes (bicubic interpolation); the
+        registered second surface is ``second.scaled().at(result.h)``.
+        """
+        return self.interpolator(h[..., 0], h[..., 1])[0]
+
+    def resampled(self, m: int, n: int) -> GridSurface:
+        """The surface on a uniform m x n grid (bicubic interpolation)."""
+        r, t = np.linspace(0, 1, m), np.linspace(0, 1, n)
+        return GridSurface(self.at(np.stack(np.meshgrid(r, t, indexing="ij"), axis=-1)), r, t)
 
     def save(self, path) -> None:
         """Write ``points``, ``r`` and ``t`` to an ``.npz`` file."""
         np.savez(path, points=self.points, r=self.r, t=self.t)
+
+
+def as_surface(surface) -> GridSurface:
+    """A GridSurface from a GridSurface, an (M, N, 3) array, or a grid file path."""
+    if isinstance(surface, GridSurface):
+        return surface
+    if isinstance(surface, (str, Path)):
+        return read_grid(surface)
+    return GridSurface.from_array(surface)
 
 
 def read_grid(path, shape: tuple[int, int] | None = None) -> GridSurface:

@@ -6,8 +6,8 @@ cell formula of :mod:`meshreg.srnf`. The factor sqrt(det Jh) is then implicit in
 The alternative, interpolating q2 (bicubic, from cell centres) at h and multiplying by
 sqrt(det Jh), was measured to be about 1000 times less accurate: with the exact h of the paper's
 same-shape pairs (where E = 0 exactly) it leaves E = 3e-6 to 1e-5 on 101 x 101 grids, against
-4e-10 to 2e-9 for resampling the points (``python benchmarks/q_recompute.py``). Resampling is also what an evaluator holding the exact
-second surface does, so the E reported here is the E that anyone recomputes from R and h.
+4e-10 to 2e-9 for resampling the points (``python benchmarks/q_recompute.py``). Resampling is also what an
+evaluator holding the exact second surface does, so the E reported here is the E that anyone recomputes from R and h.
 
 References
 ----------
@@ -22,7 +22,6 @@ import scipy.sparse as sp
 
 from .diffeo import identity
 from .grid import GridSurface
-from .spline import GridInterpolator
 from .srnf import (
     cell_weights,
     cross_covariance,
@@ -54,13 +53,13 @@ class Objective:
         self.r, self.t = self.first.r, self.first.t
         self.weights = cell_weights(self.r, self.t)
         self.q1 = shape_function(self.first.points, self.r, self.t)
-        self.c2 = GridInterpolator(self.second.points, self.second.r, self.second.t)
+        self.c2 = self.second.interpolator
         self.identity = identity(self.r, self.t)
         self._pattern = None
 
     def points(self, h: np.ndarray) -> np.ndarray:
         """The second surface at h: c2(h(r_i, t_j)), shape (M, N, 3)."""
-        return self.c2(h[..., 0], h[..., 1])[0]
+        return self.second.at(h)
 
     def q2(self, h: np.ndarray) -> np.ndarray:
         """(q2, h), the shape function of c2 o h, shape (M-1, N-1, 3)."""
@@ -125,7 +124,10 @@ class Objective:
         res = sw * (self.q1 @ rotation.T - q)
         m, n = h.shape[:2]
         blocks = np.concatenate(
-            [-sw[..., None] * (cell_jac[c] @ node_jac[di : m - 1 + di, dj : n - 1 + dj]) for c, (di, dj) in enumerate(_CORNERS)],
+            [
+                -sw[..., None] * (cell_jac[c] @ node_jac[di : m - 1 + di, dj : n - 1 + dj])
+                for c, (di, dj) in enumerate(_CORNERS)
+            ],
             axis=-1,
         )  # (M-1, N-1, 3, 8): columns (corner, component)
         if self._pattern is None or self._pattern.shape != (m, n):
@@ -192,7 +194,9 @@ class CellJacobian:
         xr = x.reshape(self.blocks.shape[0], 3, -1)
         contrib = np.einsum("cai,cak->cik", self.blocks, xr).reshape(-1, xr.shape[-1])
         cols = self.pattern.cols.ravel()
-        out = np.stack([np.bincount(cols, weights=contrib[:, k], minlength=self.pattern.size) for k in range(xr.shape[-1])], -1)
+        out = np.stack(
+            [np.bincount(cols, weights=contrib[:, k], minlength=self.pattern.size) for k in range(xr.shape[-1])], -1
+        )
         return out.reshape((self.pattern.size,) + x.shape[1:])
 
     def gram(self) -> sp.csr_matrix:

@@ -28,8 +28,12 @@ def run_paper(grid: int = 101, modes=("dp", "gd", "dp+gd", "auto"), progress: bo
             for mode in modes:
                 result = register(pair.first, pair.second, mode=mode)
                 angle = angle_between(result.rotation, pair.rotation) if pair.same_shape else float("nan")
-                row[mode] = {"E": result.energy, "seconds": result.timings["total"], "angle": angle,
-                             "R": result.rotation}
+                row[mode] = {
+                    "E": result.energy,
+                    "seconds": result.timings["total"],
+                    "angle": angle,
+                    "R": result.rotation,
+                }
                 bar.update(1)
             rows.append(row)
     return rows

@@ -13,8 +13,8 @@ and (r^5/4, t^5/4)).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -55,7 +55,13 @@ PERTURBATIONS: dict[str, tuple[Callable, Callable]] = {
 def bump() -> Param:
     """A graph with two Gaussian bumps and a tilt, not symmetric under any symmetry of the square."""
     return lambda r, t: np.stack(
-        [r, t, 0.6 * np.exp(-((r - 0.3) ** 2 + (t - 0.6) ** 2) / 0.05) - 0.3 * np.exp(-((r - 0.7) ** 2 + (t - 0.3) ** 2) / 0.02) + 0.2 * r],
+        [
+            r,
+            t,
+            0.6 * np.exp(-((r - 0.3) ** 2 + (t - 0.6) ** 2) / 0.05)
+            - 0.3 * np.exp(-((r - 0.7) ** 2 + (t - 0.3) ** 2) / 0.02)
+            + 0.2 * r,
+        ],
         axis=-1,
     )
 
@@ -77,7 +83,12 @@ def terrain(seed: int = 0, modes: int = 6) -> Param:
     phase = rng.uniform(0, 2 * np.pi, size=modes)
     amp = 0.25 / (1 + np.arange(modes))
     return lambda r, t: np.stack(
-        [r, t, sum(a * np.sin(2 * np.pi * (f[0] * r + f[1] * t) + p) for a, f, p in zip(amp, freq, phase))], axis=-1
+        [
+            r,
+            t,
+            sum(a * np.sin(2 * np.pi * (f[0] * r + f[1] * t) + p) for a, f, p in zip(amp, freq, phase, strict=True)),
+        ],
+        axis=-1,
     )
 
 
@@ -86,7 +97,10 @@ def warp(a: float = 0.08) -> Callable:
 
     gamma(r, t) = (r + a sin(pi r) sin(2 pi t), t + a sin(pi t) sin(2 pi r)).
     """
-    return lambda r, t: (r + a * np.sin(np.pi * r) * np.sin(2 * np.pi * t), t + a * np.sin(np.pi * t) * np.sin(2 * np.pi * r))
+    return lambda r, t: (
+        r + a * np.sin(np.pi * r) * np.sin(2 * np.pi * t),
+        t + a * np.sin(np.pi * t) * np.sin(2 * np.pi * r),
+    )
 
 
 def sample(c: Param, m: int = 101, n: int = 101, gamma: Callable | None = None) -> GridSurface:

@@ -14,7 +14,6 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from .grid import GridSurface
-from .search import resample
 
 NODES_PER_SIGMA = 5  # grid spacing of a smoothed level: sigma / NODES_PER_SIGMA
 MIN_LEVEL_NODES = 11
@@ -51,7 +50,7 @@ def smoothed(surface: GridSurface, sigma: float, nodes: int) -> GridSurface:
     >>> bool(wave < 0.5 * np.ptp(flat.points[..., 0]))
     True
     """
-    uniform = resample(surface, nodes, nodes)
+    uniform = surface.resampled(nodes, nodes)
     points = uniform.points
     for axis in (0, 1):
         points = _blur(points, sigma * (nodes - 1), axis)

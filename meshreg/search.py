@@ -22,7 +22,6 @@ from .dp import dp_surface_min
 from .grid import GridSurface
 from .objective import Objective
 from .rotation import kabsch
-from .spline import GridInterpolator
 from .srnf import cell_normals
 
 # (swap r and t, flip r, flip t); index 0 is the identity
@@ -91,13 +90,6 @@ def principal_rotations(first: GridSurface, second: GridSurface) -> np.ndarray:
     return np.array(out)
 
 
-def resample(surface: GridSurface, m: int, n: int) -> GridSurface:
-    """The surface on a uniform m x n grid (bicubic interpolation)."""
-    r, t = np.linspace(0, 1, m), np.linspace(0, 1, n)
-    u, v = np.meshgrid(r, t, indexing="ij")
-    return GridSurface(GridInterpolator(surface.points, surface.r, surface.t)(u, v)[0], r, t)
-
-
 @dataclass(frozen=True)
 class Start:
     """A ranked starting point: symmetry index, rotation and the coarse DP energy."""
@@ -132,8 +124,8 @@ def best_start(
     list of Start
         One per symmetry (its best rotation), sorted by energy.
     """
-    coarse1 = resample(first.scaled(), grid, grid)
-    coarse2 = resample(second.scaled(), grid, grid)
+    coarse1 = first.scaled().resampled(grid, grid)
+    coarse2 = second.scaled().resampled(grid, grid)
     rotations = np.concatenate([cube_rotations(), principal_rotations(coarse1, coarse2)])
     starts = []
     for k in range(len(SQUARE_SYMMETRIES) if symmetries else 1):

@@ -1,6 +1,6 @@
 """Shape functions of grid surfaces, the energy E and its derivative with respect to the points.
 
-Discretization (one q per grid cell, as in ``dp_surface_min.md``): for the cell (i, j) with corners
+Discretization (one q per grid cell, as in docs/dp.md): for the cell (i, j) with corners
 c_ij, c_i+1,j, c_i,j+1, c_i+1,j+1 the vector area is ``n = 1/2 (c_i+1,j+1 - c_ij) x (c_i,j+1 - c_i+1,j)``,
 ``v = n / (dr_i dt_j)`` approximates c_r x c_t and ``q = v / sqrt|v|`` (0 where v = 0). Integrals over
 the square are sums over cells with weights ``dr_i dt_j``, so ``sum |q|^2 dr dt`` is the surface area.
@@ -150,7 +150,9 @@ def shape_function_jacobians(points: np.ndarray, weights: np.ndarray) -> tuple[n
     """
     d1, d2, w, v, norm, q = _cells(points, weights)
     vhat = v / norm
-    dq_dn = (np.eye(3) - 0.5 * vhat[..., :, None] * vhat[..., None, :]) / (np.sqrt(_derivative_scale(norm)) * w)[..., None]
+    dq_dn = (np.eye(3) - 0.5 * vhat[..., :, None] * vhat[..., None, :]) / (np.sqrt(_derivative_scale(norm)) * w)[
+        ..., None
+    ]
     s1 = 0.5 * dq_dn @ _skew(d1)
     s2 = 0.5 * dq_dn @ _skew(d2)
     return q, np.stack([s2, -s1, s1, -s2])

@@ -1,14 +1,18 @@
-"""Figures (PNG): boundaries of the registered surfaces, as in the paper, and the energy curve."""
+"""Every figure meshreg writes (PNG), drawn on :class:`matplotlib.figure.Figure` objects: no pyplot state and no
+backend switch, so importing this module changes nothing in a notebook.
+
+- :func:`plot_registration`: boundaries of R c1 and c2 o h, as in the paper, and the energy per accepted step;
+- :func:`plot_meshes`: two meshes side by side, coloured so that corresponding points share a colour;
+- :func:`plot_matrix`: a distance matrix as a heat map ordered by a dendrogram, and its MDS embedding.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the "3d" projection)
 
 
 def _boundary(points: np.ndarray) -> np.ndarray:
@@ -30,7 +34,7 @@ def plot_registration(first_rotated: np.ndarray, second_registered: np.ndarray, 
     path : str or Path
         Output file.
     """
-    fig = plt.figure(figsize=(11, 4.8))
+    fig = Figure(figsize=(11, 4.8))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     for pts, style, label in ((first_rotated, "b-", "R c1"), (second_registered, "r--", "c2 o h")):
         pts = pts - pts.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay the two
@@ -49,7 +53,6 @@ def plot_registration(first_rotated: np.ndarray, second_registered: np.ndarray, 
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -60,12 +63,14 @@ def plot_matrix(names, distance: np.ndarray, embedding: np.ndarray, path, title:
     from scipy.spatial.distance import squareform
 
     d = np.where(np.isfinite(distance), distance, np.nanmax(distance))
-    fig = plt.figure(figsize=(13, 6.5))
+    fig = Figure(figsize=(13, 6.5))
     grid = fig.add_gridspec(2, 2, height_ratios=[1, 4], width_ratios=[1.1, 1], hspace=0.02, wspace=0.25)
     top, heat, emb = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[:, 1])
     labels = [Path(str(n)).stem for n in names]
     if len(d) > 2:
-        tree = dendrogram(linkage(squareform(d, checks=False), method="average"), ax=top, no_labels=True, color_threshold=0)
+        tree = dendrogram(
+            linkage(squareform(d, checks=False), method="average"), ax=top, no_labels=True, color_threshold=0
+        )
         order = tree["leaves"]
     else:
         order = list(range(len(d)))
@@ -86,5 +91,52 @@ def plot_matrix(names, distance: np.ndarray, embedding: np.ndarray, path, title:
     fig.suptitle(title or f"{len(names)} surfaces, {len(names) * (len(names) - 1) // 2} pairs")
     path = Path(path)
     fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
     return path
+
+
+def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """A rotation (3, 3) taking the mesh's mean (area-weighted) normal to +z: the camera then faces the surface."""
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]).sum(axis=0)
+    z = n / max(np.linalg.norm(n), 1e-300)
+    x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z])
+
+
+def plot_meshes(path, v1, f1, c1, v2, f2, c2, title: str = "", second_to_first: np.ndarray | None = None) -> None:
+    """PNG: the two meshes side by side, coloured by correspondence, both seen from the first's mean normal.
+
+    ``second_to_first`` (4, 4), the similarity from the second's frame to the first's, puts the second
+    mesh in the first's pose so that the two pictures can be compared point by point.
+    """
+    if second_to_first is not None:
+        v2 = v2 @ second_to_first[:3, :3].T + second_to_first[:3, 3]
+    view = _view_rotation(v1, f1)
+    fig = Figure(figsize=(11, 5))
+    for k, (v, f, c, name) in enumerate(((v1, f1, c1, "first"), (v2, f2, c2, "second"))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        p = (v - v.mean(axis=0)) @ view.T
+        ax.plot_trisurf(p[:, 0], p[:, 1], p[:, 2], triangles=f, color="w", linewidth=0, shade=False).set_facecolor(
+            c[f].mean(1)
+        )
+        ax.set_title(
+            f"{name} mesh ({len(v)} vertices)" + (", in the first's pose" if k and second_to_first is not None else "")
+        )
+        ax.set_box_aspect(np.ptp(p, axis=0) + 1e-9)
+        ax.view_init(elev=65, azim=-90)
+        ax.set_axis_off()
+    fig.suptitle(title or "corresponding points share a colour")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def classical_mds(distance: np.ndarray, dims: int = 2) -> np.ndarray:
+    """Classical (Torgerson) multidimensional scaling: points (N, dims) whose Euclidean distances best match
+    ``distance`` (N, N) (failed pairs, NaN, are set to the largest finite distance)."""
+    d = np.where(np.isfinite(distance), distance, np.nanmax(distance))
+    n = len(d)
+    centre = np.eye(n) - 1.0 / n
+    b = -0.5 * centre @ (d**2) @ centre
+    vals, vecs = np.linalg.eigh(b)
+    top = np.argsort(vals)[::-1][:dims]
+    return vecs[:, top] * np.sqrt(np.maximum(vals[top], 0.0))

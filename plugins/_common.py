@@ -8,7 +8,7 @@ import numpy as np
 
 from meshreg.mesh.correspond import MeshRegistration, register_meshes
 from meshreg.mesh.export import colored_outputs
-from meshreg.objective import Objective
+from meshreg.options import Options
 
 
 def require(module: str, extra: str):
@@ -19,8 +19,10 @@ def require(module: str, extra: str):
         raise ImportError(f"meshreg.plugins needs {module}: pip install 'meshreg[{extra}]' ({err})") from None
 
 
-def register_arrays(first, second, **params) -> tuple[MeshRegistration, np.ndarray, np.ndarray, tuple]:
+def register_arrays(
+    first, second, options: Options | None = None
+) -> tuple[MeshRegistration, np.ndarray, np.ndarray, tuple]:
     """Register (vertices, faces) pairs; returns the mesh registration, colours (n1, 3) and (n2, 3) in [0, 1] on
     the input vertices (grey where cleanup dropped a vertex) and the registered mesh (vertices, faces, colours)."""
-    mr = register_meshes(first, second, **params)
-    return mr, *colored_outputs(mr, len(first[0]), len(second[0]), Objective(*mr.grids))
+    mr = register_meshes(first, second, options)
+    return mr, *colored_outputs(mr, len(first[0]), len(second[0]))

@@ -18,7 +18,8 @@ import numpy as np
 from meshreg.mesh.correspond import similarity_transform, vertex_pairs
 from meshreg.mesh.harmonic import HarmonicMap, choose_corners
 from meshreg.mesh.topology import prepare_disk
-from meshreg.register import Registration
+from meshreg.options import Options
+from meshreg.result import Registration
 
 from ._common import register_arrays, require
 
@@ -67,18 +68,20 @@ def _colored(mesh, colors: np.ndarray):
     return out
 
 
-def register(source, target, **params) -> ElasticRegistrationResult:
+def register(source, target, options: Options | None = None) -> ElasticRegistrationResult:
     """Rotate (and scale, shift) ``source`` onto ``target`` and reparametrize ``target`` elastically.
 
     Parameters
     ----------
     source, target : open3d.geometry.TriangleMesh
         Disk-topology meshes (cleanup as in :func:`meshreg.mesh.prepare_disk`); neither is modified.
-    **params
-        As for :func:`meshreg.mesh.correspond.register_meshes` (grid, weights, corners, mode, window, ...).
+    options : meshreg.Options, optional
+        Mesh preparation and registration settings (resolution, weights, corners1/2, mode, window, ...).
     """
-    mr, c1, c2, (rv, rf, rc) = register_arrays(_arrays(source), _arrays(target), **params)
-    registered = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(rv), o3d.utility.Vector3iVector(rf.astype(np.int32)))
+    mr, c1, c2, (rv, rf, rc) = register_arrays(_arrays(source), _arrays(target), options)
+    registered = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(rv), o3d.utility.Vector3iVector(rf.astype(np.int32))
+    )
     registered.vertex_colors = o3d.utility.Vector3dVector(rc)
     return ElasticRegistrationResult(
         transformation=similarity_transform(mr),

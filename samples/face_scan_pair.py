@@ -2,7 +2,8 @@
 boundary vertex, a round boundary) and a re-triangulated copy of it (20000 random points, its own holes),
 rotated, scaled by 0.01 and shifted. Then register them with the command line:
 
-    pip install -e ".[meshlab]" && python samples/face_scan_pair.py DIR && meshreg register DIR/face_crop.ply DIR/face_copy.ply -o DIR/out
+    pip install -e ".[meshlab]" && python samples/face_scan_pair.py DIR
+    meshreg register DIR/face_crop.ply DIR/face_copy.ply -o DIR/out
 
 The scan is read from the installed pymeshlab wheel (GPL): nothing of it is copied into this project.
 """

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pymeshlab
+from meshreg.plugins import meshlab
 
 from meshreg.mesh.samples import face_scan_pair
-from meshreg.plugins import meshlab
 
 
 def main(out: Path) -> None:

@@ -12,6 +12,7 @@ import trimesh
 
 from meshreg.batch import CHECKPOINT_SUFFIX, Checkpoint, DistanceMatrix, distance_matrix
 from meshreg.errors import InputError
+from meshreg.options import Options
 from meshreg.samples import bump, helicoid, sample, sine, warp
 
 
@@ -31,15 +32,20 @@ def test_matrix_is_a_distance_matrix(serial):
     assert np.all(d[np.triu_indices(4, 1)][1:] > 0.3)  # different shapes
     assert np.allclose(serial.energy, d**2) and not serial.failures
     r = serial.rotations[0, 2]
-    assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1) and np.allclose(serial.rotations[2, 0], r.T)
+    assert (
+        np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1) and np.allclose(serial.rotations[2, 0], r.T)
+    )
 
 
+@pytest.mark.slow
 def test_process_pool_and_dask_cluster_give_the_same_numbers(serial):
     pooled = distance_matrix(_grids(), jobs=2)
     np.testing.assert_allclose(pooled.distance, serial.distance, rtol=1e-9, atol=1e-12)
     from distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as cluster:
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+    ) as cluster:
         with Client(cluster) as client:
             clustered = distance_matrix(_grids(), client=client)
     np.testing.assert_allclose(clustered.distance, serial.distance, rtol=1e-9, atol=1e-12)
@@ -49,7 +55,9 @@ def test_process_pool_and_dask_cluster_give_the_same_numbers(serial):
 def test_save_load_round_trip(serial, tmp_path):
     serial.save(tmp_path / "D.npz")
     back = DistanceMatrix.load(tmp_path / "D.npz")
-    assert back.names == serial.names and np.array_equal(back.distance, serial.distance) and back.params == serial.params
+    assert (
+        back.names == serial.names and np.array_equal(back.distance, serial.distance) and back.params == serial.params
+    )
 
 
 def test_checkpoint_of_another_run_is_refused_and_cut_lines_are_redone(tmp_path):
@@ -74,6 +82,7 @@ def _write_collection(tmp_path, n=21):
     return files
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_where_it_stopped(tmp_path):
     files = _write_collection(tmp_path, 21)
     out = tmp_path / "D.npz"
@@ -102,22 +111,42 @@ def test_cli_reports_failed_pairs_and_plots(tmp_path):
     files = _write_collection(tmp_path, 11)[:3]
     trimesh.creation.icosphere().export(tmp_path / "closed.stl")
     out = tmp_path / "m" / "D.npz"
-    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "matrix", *map(str, files), str(tmp_path / "closed.stl"),
-                           "-o", str(out), "--jobs", "2", "--plot", "-q"], capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "meshreg.cli",
+            "matrix",
+            *map(str, files),
+            str(tmp_path / "closed.stl"),
+            "-o",
+            str(out),
+            "--jobs",
+            "2",
+            "--plot",
+            "-q",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.count("failed pair") == 3 and "closed" in proc.stdout
     result = DistanceMatrix.load(out)
     assert np.isnan(result.distance[3, 0]) and np.isfinite(result.distance[:3, :3]).all()
     assert len(result.failures) == 3 and out.with_suffix(".png").stat().st_size > 0
-    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "matrix", str(files[0]), str(files[1]), "-o", str(files[0])],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "meshreg.cli", "matrix", str(files[0]), str(files[1]), "-o", str(files[0])],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_meshes_and_grids_mixed_with_round_boundaries(tmp_path):
     from meshreg.mesh.samples import face_scan_pair
 
     (v1, f1), (v2, f2, _), _ = face_scan_pair(n_points=15000)
-    d = distance_matrix([(v1, f1), (v2, f2), sample(bump(), 41, 41)], jobs=1, resolution=41)
+    d = distance_matrix([(v1, f1), (v2, f2), sample(bump(), 41, 41)], Options(resolution=41), jobs=1)
     assert d.energy[0, 1] <= 0.02  # the scan and its rotated re-triangulated copy: the corner search matters
     assert d.distance[0, 2] > 3 * d.distance[0, 1] and not d.failures

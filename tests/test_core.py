@@ -21,10 +21,20 @@ def test_energy_gradient_matches_finite_differences():
     e, grad = energy_gradient_points(target, pts, w)
     d = rng.standard_normal(pts.shape)
     eps = 1e-6
-    fd = (energy_gradient_points(target, pts + eps * d, w)[0] - energy_gradient_points(target, pts - eps * d, w)[0]) / (2 * eps)
+    fd = (energy_gradient_points(target, pts + eps * d, w)[0] - energy_gradient_points(target, pts - eps * d, w)[0]) / (
+        2 * eps
+    )
     assert fd == pytest.approx(np.sum(grad * d), rel=1e-6)
     q, jac = shape_function_jacobians(pts, w)
     assert np.allclose(q, shape_function(pts, r, t))
+    # jac[c] maps a displacement of corner c of each cell to the change of its q: the four add up to dq along d
+    corners = ((0, 0), (1, 0), (0, 1), (1, 1))
+    predicted = sum(
+        np.einsum("ijab,ijb->ija", jac[c], d[di : di + 6, dj : dj + 5]) for c, (di, dj) in enumerate(corners)
+    )
+    fd_q = (shape_function(pts + eps * d, r, t) - shape_function(pts - eps * d, r, t)) / (2 * eps)
+    assert np.allclose(predicted, fd_q, rtol=1e-5, atol=1e-7)
+    assert np.abs(fd_q).max() > 0.1  # a real change, not a vacuous comparison
 
 
 def test_kabsch_never_reflects():
@@ -41,7 +51,8 @@ def test_riseth_basis_is_orthonormal_and_tangent():
     basis = riseth_basis(3, x, x)
     assert basis.size == 2 * (3 + 2 * 9)
     f = basis.matrix().reshape(len(x), len(x), 2, -1)
-    w = np.full(len(x), x[1]); w[[0, -1]] /= 2  # trapezoid rule
+    w = np.full(len(x), x[1])
+    w[[0, -1]] /= 2  # trapezoid rule
     gram = np.einsum("i,j,ijcn,ijcm->nm", w, w, f, f)
     assert np.allclose(gram, np.eye(basis.size), atol=1e-6)
     assert np.allclose(f[0, :, 0], 0) and np.allclose(f[-1, :, 0], 0)
@@ -84,24 +95,30 @@ def test_validity_detects_folds_and_boundary_errors():
     r = t = np.linspace(0, 1, 6)
     h = identity(r, t)
     assert is_valid(h) and np.all(corner_areas(h) > 0)
-    folded = h.copy(); folded[2, 2] = folded[3, 3] + 0.05
+    folded = h.copy()
+    folded[2, 2] = folded[3, 3] + 0.05
     assert not is_valid(folded)
-    off = h.copy(); off[0, 3, 0] = 0.1
+    off = h.copy()
+    off[0, 3, 0] = 0.1
     assert not is_valid(off)
 
 
 def test_gradient_is_directional_derivative_of_composition():
     pair = paper_pairs(31, 31)[3]
     ob = Objective(pair.first, pair.second)
-    h = ob.identity.copy(); h[..., 0] **= 1.1
+    h = ob.identity.copy()
+    h[..., 0] **= 1.1
     _, dr, dt = GridInterpolator(h, ob.r, ob.t)(ob.identity[..., 0], ob.identity[..., 1])
     e, density = ob.gradient(pair.rotation, h, dr, dt)
     rr, tt = ob.identity[..., 0], ob.identity[..., 1]
     v = np.stack([np.sin(np.pi * rr) * np.cos(tt), rr * np.sin(np.pi * tt)], -1)
     from meshreg.diffeo import compose
+
     eps = 1e-6
-    fd = (ob.energy(pair.rotation, compose(h, ob.r, ob.t, ob.identity + eps * v))
-          - ob.energy(pair.rotation, compose(h, ob.r, ob.t, ob.identity - eps * v))) / (2 * eps)
+    fd = (
+        ob.energy(pair.rotation, compose(h, ob.r, ob.t, ob.identity + eps * v))
+        - ob.energy(pair.rotation, compose(h, ob.r, ob.t, ob.identity - eps * v))
+    ) / (2 * eps)
     assert fd == pytest.approx(np.sum(density * v), rel=1e-5)
     res, node_jac = ob.linearize(pair.rotation, h, dr, dt)
     assert res @ res == pytest.approx(e)
@@ -117,7 +134,7 @@ def pairs101():
 
 @pytest.mark.parametrize(
     "name, expected",
-    # dp_surface_min.md, reimplementation column at W = 10 (checked against the paper's DP column)
+    # docs/dp.md, reimplementation column at W = 10 (checked against the paper's DP column)
     [("sine2-2 g1", 0.00115), ("sine2-3 g1", 0.3436), ("helicoid4 g2", 0.0796), ("cossin g2", 0.0146)],
 )
 def test_dp_reproduces_specification(pairs101, name, expected):

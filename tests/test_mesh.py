@@ -4,16 +4,18 @@ import sys
 import numpy as np
 import pytest
 import trimesh
+from scipy.interpolate import LinearNDInterpolator
+from scipy.spatial import Delaunay
 from scipy.spatial.transform import Rotation
 
 from meshreg.errors import InputError
 from meshreg.mesh import load_mesh, parametrize, prepare_disk, resample_grid
-from meshreg.mesh.correspond import register_meshes, uv_colors
+from meshreg.mesh.correspond import register_meshes
+from meshreg.mesh.export import uv_colors
 from meshreg.mesh.samples import random_disk_mesh, terrain_function
+from meshreg.options import Options
 from meshreg.rotation import angle_between
 from meshreg.samples import bump
-from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import Delaunay
 
 
 def test_parametrization_is_bijective_and_sides_on_sides():
@@ -33,14 +35,14 @@ def test_remeshed_rotated_copy_gives_small_energy_and_matching_colours(surface):
     rot = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
     v1, f1, p1 = random_disk_mesh(surface, 1500, seed=3)
     v2, f2, p2 = random_disk_mesh(surface, 2500, seed=4, rotation=rot, scale=3.0)
-    mr = register_meshes((v1, f1), (v2, f2), grid=61)
+    mr = register_meshes((v1, f1), (v2, f2), Options(resolution=61))
     assert mr.result.energy <= 0.02
     assert angle_between(mr.result.rotation, rot) < 2.0
     # true correspondence: equal parameters p; colour the first mesh's uv at the second's points
     truth_uv = LinearNDInterpolator(p1[mr.first.vertex_map], mr.uv1)(p2[mr.second.vertex_map])
     ok = ~np.isnan(truth_uv[:, 0])
     truth = uv_colors(truth_uv[ok])
-    err = np.median(np.linalg.norm(mr.colors2[ok] - truth, axis=1))
+    err = np.median(np.linalg.norm(uv_colors(mr.matched_uv2)[ok] - truth, axis=1))
     typical = np.median(np.linalg.norm(truth - truth[np.random.default_rng(0).permutation(len(truth))], axis=1))
     assert err <= 0.1 * typical
 
@@ -50,7 +52,7 @@ def test_face_scan_crop_with_holes_against_remeshed_copy():
 
     # raw crop: holes, a pinched boundary vertex, a round boundary; the copy: its own triangles and holes
     (v1, f1), (v2, f2, xy2), rot = face_scan_pair(n_points=15000)
-    mr = register_meshes((v1, f1), (v2, f2), grid=41)
+    mr = register_meshes((v1, f1), (v2, f2), Options(resolution=41))
     assert any("filled" in line for line in mr.info["first"]["cleanup"])
     assert mr.result.energy <= 0.02
     assert angle_between(mr.result.rotation, rot) < 2.0
@@ -58,7 +60,7 @@ def test_face_scan_crop_with_holes_against_remeshed_copy():
     truth_uv = LinearNDInterpolator(mr.first.vertices[:k1, :2], mr.uv1[:k1])(xy2[mr.second.vertex_map])
     ok = ~np.isnan(truth_uv[:, 0])
     truth = uv_colors(truth_uv[ok])
-    err = np.median(np.linalg.norm(mr.colors2[:k2][ok] - truth, axis=1))
+    err = np.median(np.linalg.norm(uv_colors(mr.matched_uv2)[:k2][ok] - truth, axis=1))
     typical = np.median(np.linalg.norm(truth - truth[np.random.default_rng(0).permutation(len(truth))], axis=1))
     assert err <= 0.1 * typical
 
@@ -73,8 +75,13 @@ def _annulus():
     "make, message",
     [
         (lambda: (trimesh.creation.icosphere().vertices, trimesh.creation.icosphere().faces), "closed"),
-        (lambda: (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0.0], [0.2, 0.2, -1]]),
-                  np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4], [0, 2, 5]])), "non-manifold"),
+        (
+            lambda: (
+                np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0.0], [0.2, 0.2, -1]]),
+                np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4], [0, 2, 5]]),
+            ),
+            "non-manifold",
+        ),
         (lambda: (np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]])), "NaN"),
     ],
 )
@@ -104,6 +111,7 @@ def test_pinched_boundary_vertex_is_repaired():
         k = np.arange(n * n).reshape(n, n)
         quads = np.c_[k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()]
         return pts, np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
     v1, f1 = patch(4, np.zeros(3), 1.0)
     v2, f2 = patch(3, np.zeros(3), -1.0)  # its corner (0, 0) is vertex 0 of the first
     f2 = np.where(f2 == 0, -len(v1), f2) + len(v1)
@@ -134,6 +142,7 @@ def test_unreadable_and_empty_files(tmp_path):
         load_mesh(tmp_path / "missing.obj")
 
 
+@pytest.mark.slow
 def test_cli_meshes_end_to_end_and_errors(tmp_path):
     v1, f1, _ = random_disk_mesh(bump(), 800, seed=6)
     v2, f2, _ = random_disk_mesh(bump(), 1200, seed=7, rotation=Rotation.random(random_state=1).as_matrix())
@@ -141,8 +150,21 @@ def test_cli_meshes_end_to_end_and_errors(tmp_path):
     trimesh.Trimesh(v2, f2, process=False).export(tmp_path / "b.obj")
     before = (tmp_path / "a.ply").read_bytes()
     out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "register", str(tmp_path / "a.ply"), str(tmp_path / "b.obj"), "-o", str(out), "-q"],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "meshreg.cli",
+            "register",
+            str(tmp_path / "a.ply"),
+            str(tmp_path / "b.obj"),
+            "-o",
+            str(out),
+            "-q",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr
     for name in ("first.ply", "second.ply", "registered.ply", "result.npz", "meshes.png", "registration.png"):
         assert (out / name).stat().st_size > 0
@@ -154,12 +176,26 @@ def test_cli_meshes_end_to_end_and_errors(tmp_path):
     assert (tmp_path / "a.ply").read_bytes() == before
     sphere = trimesh.creation.icosphere()
     sphere.export(tmp_path / "sphere.stl")
-    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "register", str(tmp_path / "sphere.stl"), str(tmp_path / "b.obj"), "-o", str(tmp_path / "o2"), "-q"],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "meshreg.cli",
+            "register",
+            str(tmp_path / "sphere.stl"),
+            str(tmp_path / "b.obj"),
+            "-o",
+            str(tmp_path / "o2"),
+            "-q",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "closed" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "o2" / "result.npz").exists()
 
 
+@pytest.mark.slow
 def test_cli_mesh_options(tmp_path):
     v, f = _annulus()
     trimesh.Trimesh(v, f, process=False).export(tmp_path / "ring.ply")
@@ -168,9 +204,15 @@ def test_cli_mesh_options(tmp_path):
     base = [sys.executable, "-m", "meshreg.cli", "register", str(tmp_path / "ring.ply"), str(tmp_path / "b.ply"), "-q"]
     proc = subprocess.run(base + ["-o", str(tmp_path / "o1"), "--no-cleanup"], capture_output=True, text=True)
     assert proc.returncode == 2 and "boundary loops" in proc.stderr
-    proc = subprocess.run(base + ["-o", str(tmp_path / "o2"), "--corners1", "0", "1", "2", "99999"], capture_output=True, text=True)
+    proc = subprocess.run(
+        base + ["-o", str(tmp_path / "o2"), "--corners1", "0", "1", "2", "99999"], capture_output=True, text=True
+    )
     assert proc.returncode == 2 and "not in the (cleaned) mesh" in proc.stderr and "Traceback" not in proc.stderr
-    proc = subprocess.run(base + ["-o", str(tmp_path / "o3"), "--resolution", "21", "--weights", "cotangent"], capture_output=True, text=True)
+    proc = subprocess.run(
+        base + ["-o", str(tmp_path / "o3"), "--resolution", "21", "--weights", "cotangent"],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "filled 1 hole" in proc.stdout
     with np.load(tmp_path / "o3" / "result.npz") as data:
@@ -180,7 +222,9 @@ def test_cli_mesh_options(tmp_path):
 def test_obj_with_texture_seams_keeps_its_vertices(tmp_path):
     # textured scans are OBJ files whose faces index separate texture coordinates: the mesh must not fall apart
     v, f, _ = random_disk_mesh(bump(), 200, seed=9)
-    lines = [f"v {x} {y} {z}" for x, y, z in v] + [f"vt {a} {b}" for a, b in np.random.default_rng(0).random((3 * len(f), 2))]
+    lines = [f"v {x} {y} {z}" for x, y, z in v] + [
+        f"vt {a} {b}" for a, b in np.random.default_rng(0).random((3 * len(f), 2))
+    ]
     lines += [f"f {a + 1}/{3 * k + 1} {b + 1}/{3 * k + 2} {c + 1}/{3 * k + 3}" for k, (a, b, c) in enumerate(f)]
     (tmp_path / "scan.obj").write_text("\n".join(lines) + "\n")
     v2, f2 = load_mesh(tmp_path / "scan.obj")
@@ -212,7 +256,9 @@ def test_triangle_soup_is_welded_but_a_cut_is_kept():
     ring = np.c_[np.cos(angle), np.sin(angle)]
     cv = np.vstack([np.c_[ring, np.full(n + 1, z)] for z in (0.0, 0.5, 1.0)])
     k = np.arange(n)
-    cf = np.vstack([np.c_[k, k + 1, k + n + 2] + o for o in (0, n + 1)] + [np.c_[k, k + n + 2, k + n + 1] + o for o in (0, n + 1)])
+    cf = np.vstack(
+        [np.c_[k, k + 1, k + n + 2] + o for o in (0, n + 1)] + [np.c_[k, k + n + 2, k + n + 1] + o for o in (0, n + 1)]
+    )
     cut = prepare_disk(cv, cf)
     assert not any("welded" in line for line in cut.report) and len(cut.boundary) >= 2 * n
 
@@ -230,15 +276,16 @@ def _ellipse_sheet(n_points, seed, rotation=None, scale=1.0):
     return scale * v + rng.normal(size=3), Delaunay(xy).simplices
 
 
+@pytest.mark.slow
 def test_nearly_symmetric_sheet_registers_the_close_starts_in_full():
     """The coarse ranking puts the half-turn start first (E 0.014 when only it is registered); registering
     the runner-up too finds the true rotation at a third of that E."""
     rot = Rotation.random(random_state=7).as_matrix()
     first, second = _ellipse_sheet(3000, 17), _ellipse_sheet(5000, 27, rotation=rot, scale=1.7)
-    mr = register_meshes(first, second, grid=61)
+    mr = register_meshes(first, second, Options(resolution=61))
     assert mr.result.energy < 0.006
     assert angle_between(mr.result.rotation, rot) < 2.0
     starts = mr.result.params["starts"]
     assert len(starts) >= 2 and sum(s["refined"] for s in starts) == 1 and not starts[0]["refined"]
-    only_best = register_meshes(first, second, grid=61, max_starts=1)
+    only_best = register_meshes(first, second, Options(resolution=61, max_starts=1))
     assert only_best.result.energy > 2 * mr.result.energy

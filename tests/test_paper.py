@@ -48,6 +48,7 @@ def test_dp_on_r_perturbations_is_near_zero_with_the_true_rotation(name):
     assert angle_between(result.rotation, pair.rotation) < 0.1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(PAIRS))
 def test_gd_alone_does_no_worse_than_the_papers_runs_without_dp(name):
     """Descent from R = I and h = id (no DP): at most the paper's "without DP" energy on all ten pairs."""

@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from meshreg.mesh.samples import random_disk_mesh
+from meshreg.options import Options
 from meshreg.rotation import angle_between
 from meshreg.samples import bump
 
@@ -22,7 +23,7 @@ def test_open3d_register_and_parametrize():
     v2, f2, _ = random_disk_mesh(bump(), 1800, seed=12, rotation=ROT, scale=2.0)
     source = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v1), o3d.utility.Vector3iVector(f1.astype(np.int32)))
     target = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v2), o3d.utility.Vector3iVector(f2.astype(np.int32)))
-    res = mo3d.register(source, target, grid=41)
+    res = mo3d.register(source, target, Options(resolution=41))
     assert res.energy == res.registration.energy and res.distance == pytest.approx(np.sqrt(res.energy))
     assert res.energy < 0.02 and angle_between(res.registration.rotation, ROT) < 2.0
     t = res.transformation
@@ -31,7 +32,9 @@ def test_open3d_register_and_parametrize():
     assert np.allclose(t[:3, :3] / scale, res.registration.rotation) and np.allclose(t[3], [0, 0, 0, 1])
     # matched vertices land near each other once the source is moved by the transformation
     pairs = res.correspondence_set
-    assert pairs.shape[1] == 2 and pairs.shape[0] >= 0.99 * len(v1) and pairs[:, 1].max() < len(v2)  # cleanup drops ears
+    assert (
+        pairs.shape[1] == 2 and pairs.shape[0] >= 0.99 * len(v1) and pairs[:, 1].max() < len(v2)
+    )  # cleanup drops ears
     moved = v1 @ t[:3, :3].T + t[:3, 3]
     gap = np.median(np.linalg.norm(moved[pairs[:, 0]] - v2[pairs[:, 1]], axis=1))
     assert gap < 0.03 * np.ptp(v2, axis=0).max()
@@ -46,20 +49,21 @@ def test_open3d_register_and_parametrize():
 
 def test_meshlab_apply_prepares_a_raw_scan_crop():
     import pymeshlab
-    from meshreg.mesh.samples import face_scan_pair
     from meshreg.plugins import meshlab
+
+    from meshreg.mesh.samples import face_scan_pair
 
     (v1, f1), (v2, f2, _), _ = face_scan_pair(n_points=12000, seed=2, rotation=ROT)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v1, face_matrix=f1), mesh_name="scan")
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v2, face_matrix=f2), mesh_name="copy")
-    info = meshlab.apply(ms, 0, 1, prepare=True, grid=41)
+    info = meshlab.apply(ms, 0, 1, prepare=True, options=Options(resolution=41))
     assert info["energy"] <= 0.02 and info["distance"] == pytest.approx(np.sqrt(info["energy"]))
     assert angle_between(info["registration"].rotation, ROT) < 2.0
     # the MeshLab script closed the scan's holes and split its pinched vertices: meshreg had none left to fill
     assert not any("filled" in line or "touches" in line for line in info["cleanup"]["first"])
     assert ms.mesh(0).vertex_number() == len(v1) and ms.mesh(1).vertex_number() == len(v2)  # inputs untouched
-    for key, name in meshlab.LAYER_NAMES.items():
+    for key, _name in meshlab.LAYER_NAMES.items():
         mesh = ms.mesh(info["layers"][key])
         colors = mesh.vertex_color_matrix()
         assert colors.shape == (mesh.vertex_number(), 4) and np.ptp(colors[:, :3]) > 0.3

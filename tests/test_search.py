@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 import meshreg
 from meshreg.objective import Objective
 from meshreg.rotation import angle_between
-from meshreg.samples import bump, sample, saddle, terrain, warp, wave
+from meshreg.samples import bump, saddle, sample, terrain, warp, wave
 from meshreg.search import SQUARE_SYMMETRIES, apply_symmetry, cube_rotations, principal_rotations, symmetry_map
 from meshreg.spline import GridInterpolator
 
@@ -23,8 +23,11 @@ def test_symmetry_copy_matches_the_map():
     for k in range(len(SQUARE_SYMMETRIES)):
         copy = apply_symmetry(s, k)
         mapped = symmetry_map(k, uv)
-        assert np.allclose(GridInterpolator(copy.points, copy.r, copy.t)(uv[:, 0], uv[:, 1])[0],
-                           original(mapped[:, 0], mapped[:, 1])[0], atol=1e-12)
+        assert np.allclose(
+            GridInterpolator(copy.points, copy.r, copy.t)(uv[:, 0], uv[:, 1])[0],
+            original(mapped[:, 0], mapped[:, 1])[0],
+            atol=1e-12,
+        )
 
 
 def test_principal_rotations_are_proper_and_align_axes():

@@ -1,4 +1,4 @@
-"""Register two disk meshes and colour them so that corresponding points share a colour."""
+"""Register two disk meshes: clean, map to the square, resample, register, and carry the correspondence back."""
 
 from __future__ import annotations
 
@@ -8,24 +8,14 @@ import numpy as np
 from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, RegularGridInterpolator
 from scipy.spatial import cKDTree
 
-from ..register import Registration, register
-from ..search import best_start
-from ..spline import GridInterpolator
-from .harmonic import HarmonicMap, arc_fraction, choose_corners, has_sharp_corners, quarter_corners
-from .resample import DEFAULT_GRID, resample_grid
+from ..options import Options
+from ..register import register_with
+from ..result import Registration
+from ..schedule import Progress
+from .corners import corner_positions
+from .harmonic import HarmonicMap
+from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
-
-CORNER_SEARCH = 8  # trial corner placements of the second mesh within a quarter of its boundary
-CORNER_SEARCH_GRID = 21  # coarse grid on which the trial placements are ranked
-
-# colours of the square's corners (0,0), (1,0), (1,1), (0,1), blended bilinearly
-_CORNERS = np.array([[0.85, 0.10, 0.10], [0.95, 0.80, 0.10], [0.10, 0.55, 0.95], [0.15, 0.75, 0.25]])
-
-
-def uv_colors(uv: np.ndarray) -> np.ndarray:
-    """RGB in [0, 1] (n, 3) for points (n, 2) of the square: a smooth bilinear blend of four distinct colours."""
-    u, v = uv[:, :1], uv[:, 1:]
-    return (1 - u) * (1 - v) * _CORNERS[0] + u * (1 - v) * _CORNERS[1] + u * v * _CORNERS[2] + (1 - u) * v * _CORNERS[3]
 
 
 def corresponding_uv(result: Registration, uv2: np.ndarray) -> np.ndarray:
@@ -41,7 +31,24 @@ def corresponding_uv(result: Registration, uv2: np.ndarray) -> np.ndarray:
 
 @dataclass
 class MeshRegistration:
-    """Two disk meshes, their uv, their grids (GridSurface pair), the registration and the correspondence colours."""
+    """Two disk meshes, their maps to the square, their grids and the registration.
+
+    Attributes
+    ----------
+    first, second : DiskMesh
+        The meshes after cleanup (see :func:`meshreg.mesh.prepare_disk`).
+    uv1, uv2 : ndarray, shape (n1, 2), (n2, 2)
+        Each disk vertex's place on the unit square.
+    grids : (GridSurface, GridSurface)
+        The meshes resampled on the square; ``result`` registers them.
+    result : Registration
+    matched_uv2 : ndarray, shape (n2, 2)
+        For each vertex of the second disk, the point of the first's square that the registration matches it
+        with (corresponding points of the two meshes share this value).
+    info : dict
+        Per mesh ("first", "second"): the cleanup report, the map's flipped and degenerate triangles, corners,
+        and for a searched corner placement the placements tried.
+    """
 
     first: DiskMesh
     second: DiskMesh
@@ -49,109 +56,46 @@ class MeshRegistration:
     uv2: np.ndarray
     grids: tuple
     result: Registration
-    colors1: np.ndarray
-    colors2: np.ndarray
+    matched_uv2: np.ndarray
     info: dict
 
 
-def placement_starts(disk: DiskMesh, trials: int) -> np.ndarray:
-    """Arc-length fractions (trials,) of the trial corner placements of a disk: quarter arc lengths from
-    ``trials`` starts spaced by 1/(4 trials) of its boundary, the first at the point where
-    :func:`~meshreg.mesh.harmonic.choose_corners` would start (a quarter turn is a symmetry of the square)."""
-    return arc_fraction(disk, int(choose_corners(disk)[0])) + 0.25 / trials * np.arange(trials)
-
-
-def placement_corners(disk: DiskMesh, trials: int) -> list[np.ndarray]:
-    """Corner loop positions (4,) of each trial placement of :func:`placement_starts`; the first is the
-    placement a round-boundary mesh uses as the first surface of a pair."""
-    return [quarter_corners(disk, start % 1.0) for start in placement_starts(disk, trials)]
-
-
-def placement_energy(coarse1, coarse2) -> float:
-    """Rank of a corner placement: the best coarse DP energy over the square's symmetries and rotations."""
-    return best_start(coarse1, coarse2)[0].energy
-
-
-def search_corners(first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, trials: int = CORNER_SEARCH) -> tuple[np.ndarray, list]:
-    """Corners of the second mesh that best match the first's: the ``trials`` placements of
-    :func:`placement_starts`, then one halving step around the best, ranked by :func:`placement_energy`
-    on 21 x 21 grids.
-
-    A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
-    different places, and no reparametrization that keeps the corners can undo that. This finds them.
-
-    Returns the second's corner loop positions (4,) and the (start, energy) pairs tried.
-    """
-    n = CORNER_SEARCH_GRID
-    disk1, disk2 = first.disk, second.disk
-    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n)
-
-    def energy(start):
-        uv = second(quarter_corners(disk2, start))[0]
-        return placement_energy(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n))
-
-    starts = placement_starts(disk2, trials)
-    tried = [(start, energy(start)) for start in starts]
-    best = min(tried, key=lambda x: x[1])[0]
-    tried += [(best + d, energy(best + d)) for d in (-0.125 / trials, 0.125 / trials)]
-    best = min(tried, key=lambda x: x[1])[0]
-    return quarter_corners(disk2, best % 1.0), tried
-
-
 def register_meshes(
-    first,
-    second,
-    *,
-    grid: int = DEFAULT_GRID,
-    cleanup: bool = True,
-    weights: str = "mean-value",
-    corners: tuple = (None, None),
-    corner_search: int = CORNER_SEARCH,
-    **params,
+    first, second, options: Options | None = None, callback: Progress | None = None
 ) -> MeshRegistration:
-    """Register two meshes given as (vertices, faces): clean, parametrize, resample, register, colour.
+    """Register two meshes given as (vertices (n, 3), faces (m, 3)): clean, parametrize, resample, register.
 
     Parameters
     ----------
-    first, second : tuple (vertices (n, 3), faces (m, 3))
-    grid : int
-        Both meshes are resampled on grid x grid nodes. Default 101.
-    cleanup : bool
-        Repairs of :func:`meshreg.mesh.prepare_disk` (default on, always reported in ``info``).
-    weights : {"mean-value", "cotangent"}
-        Laplacian weights of the map to the square.
-    corners : pair of (4 vertex ids or None)
-        Corner vertices of each mesh (ids in the mesh as given); default: chosen by
-        :func:`meshreg.mesh.harmonic.choose_corners`.
-    corner_search : int
-        Trial corner placements for the second mesh (:func:`search_corners`) when no corners are given
-        and the two boundaries do not both have four clear corners. 0 turns the search off. Default 8.
-    **params
-        Passed to :func:`meshreg.register` (default mode "auto", which tries the 8 symmetries of the
-        square: which corner of the boundary became (0, 0) does not matter).
+    first, second : tuple (vertices, faces)
+    options : Options, optional
+        Mesh preparation (``resolution``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
+        ``corner_search``) and registration settings (default mode "auto", which tries the 8 symmetries of
+        the square: which corner of the boundary became (0, 0) does not matter).
+    callback : callable, optional
+        Progress, as for :func:`meshreg.register`.
     """
+    options = options or Options()
     disks, maps, infos = [], [], {}
     for name, (v, f) in (("first", first), ("second", second)):
-        disk = prepare_disk(v, f, cleanup=cleanup)
+        disk = prepare_disk(v, f, cleanup=options.cleanup)
         disks.append(disk)
-        maps.append(HarmonicMap(disk, weights))
+        maps.append(HarmonicMap(disk, options.weights))
         infos[name] = {"cleanup": disk.report}
-    pos = [choose_corners(d, None if c is None else d.input_ids(c)) for d, c in zip(disks, corners)]
-    search = corner_search > 0 and corners == (None, None) and not all(has_sharp_corners(d) for d in disks)
-    if search:
-        pos[0] = placement_corners(disks[0], 1)[0]
-        pos[1], tried = search_corners(maps[0], pos[0], maps[1], corner_search)
+    positions, tried = corner_positions(disks, maps, options)
+    if tried is not None:
         infos["second"]["corner_search"] = tried
     uvs = []
-    for name, m, p in zip(("first", "second"), maps, pos):
+    for name, m, p in zip(("first", "second"), maps, positions, strict=True):
         uv, info = m(p)
         uvs.append(uv)
         infos[name].update(info)
-    grids = [resample_grid(d.vertices, d.faces, uv, grid, grid) for d, uv in zip(disks, uvs)]
-    result = register(grids[0], grids[1], **params)
-    colors1 = uv_colors(uvs[0])
-    colors2 = uv_colors(corresponding_uv(result, uvs[1]))
-    return MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, colors1, colors2, infos)
+    n = options.resolution
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
+    result = register_with(grids[0], grids[1], options, callback)
+    return MeshRegistration(
+        disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, corresponding_uv(result, uvs[1]), infos
+    )
 
 
 def similarity_transform(mr: MeshRegistration) -> np.ndarray:
@@ -162,7 +106,7 @@ def similarity_transform(mr: MeshRegistration) -> np.ndarray:
     """
     g1, g2 = mr.grids
     p = g1.points.reshape(-1, 3)
-    q = GridInterpolator(g2.points, g2.r, g2.t)(mr.result.h[..., 0], mr.result.h[..., 1])[0].reshape(-1, 3)
+    q = g2.at(mr.result.h).reshape(-1, 3)
     rp = (p - p.mean(axis=0)) @ mr.result.rotation.T
     scale = float(np.sum(rp * (q - q.mean(axis=0))) / np.sum(rp * rp))
     out = np.eye(4)
@@ -178,25 +122,3 @@ def vertex_pairs(mr: MeshRegistration) -> np.ndarray:
     h = RegularGridInterpolator((mr.result.r, mr.result.t), mr.result.h)(np.clip(mr.uv1[:k1], 0, 1))
     _, nearest = cKDTree(mr.uv2[:k2]).query(h)
     return np.c_[mr.first.vertex_map, mr.second.vertex_map[nearest]]
-
-
-def mesh_grids(vertices: np.ndarray, faces: np.ndarray, *, grid: int = DEFAULT_GRID, cleanup: bool = True,
-               weights: str = "mean-value", corner_search: int = CORNER_SEARCH):
-    """One mesh, on its own, to grid surfaces: clean, map to the square, resample on grid x grid nodes.
-
-    With four clear corners (or ``corner_search=0``), one grid (corners by
-    :func:`~meshreg.mesh.harmonic.choose_corners`); else one grid per trial corner placement of
-    :func:`placement_starts` (one LU serves them all), the first of which is the mesh's own placement when
-    it is the first surface of a pair; a pair ranks the second's placements by :func:`placement_energy`.
-
-    Returns the list of GridSurfaces and an info dict (cleanup report, corners, flipped and degenerate counts).
-    """
-    disk = prepare_disk(vertices, faces, cleanup=cleanup)
-    hmap = HarmonicMap(disk, weights)
-    if corner_search > 0 and not has_sharp_corners(disk):
-        placements = placement_corners(disk, corner_search)
-    else:
-        placements = [choose_corners(disk)]
-    maps = [hmap(corners) for corners in placements]
-    grids = [resample_grid(disk.vertices, disk.faces, uv, grid, grid) for uv, _ in maps]
-    return grids, {**maps[0][1], "cleanup": disk.report}

@@ -101,10 +101,14 @@ def _weights(v, f, kind):
             nij, nil = np.linalg.norm(eij, axis=1), np.linalg.norm(eil, axis=1)
             angle = np.arccos(np.clip(np.sum(eij * eil, 1) / (nij * nil), -1, 1))
             t = np.tan(angle / 2)
-            rows += [i, i]; cols += [j, l]; vals += [t / nij, t / nil]  # noqa: E702
+            rows += [i, i]
+            cols += [j, l]
+            vals += [t / nij, t / nil]  # noqa: E702
         else:  # cotangent of the angle at i weights the opposite edge (j, l)
             cot = np.sum(eij * eil, 1) / np.maximum(np.linalg.norm(np.cross(eij, eil), axis=1), 1e-300)
-            rows += [j, l]; cols += [l, j]; vals += [0.5 * cot, 0.5 * cot]  # noqa: E702
+            rows += [j, l]
+            cols += [l, j]
+            vals += [0.5 * cot, 0.5 * cot]  # noqa: E702
     n = len(v)
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
@@ -177,8 +181,11 @@ class HarmonicMap:
             uv[self.interior] = self._lu.solve(np.ascontiguousarray(-(self._coupling @ uv[loop])))
         d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
         signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-        info = {"corners": loop[corner_pos].tolist(), "flipped": int(np.sum(signed < 0)),
-                "degenerate": int(np.sum(np.abs(signed) < 1e-14))}
+        info = {
+            "corners": loop[corner_pos].tolist(),
+            "flipped": int(np.sum(signed < 0)),
+            "degenerate": int(np.sum(np.abs(signed) < 1e-14)),
+        }
         return np.clip(uv, 0.0, 1.0), info
 
 

@@ -37,7 +37,9 @@ def _rasterize(uv, faces, values, r, t, out, hit, tol):
                         out[i, j, k] = l0 * values[a, k] + l1 * values[b, k] + l2 * values[c, k]
 
 
-def resample_grid(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, m: int = DEFAULT_GRID, n: int = DEFAULT_GRID) -> GridSurface:
+def resample_grid(
+    vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, m: int = DEFAULT_GRID, n: int = DEFAULT_GRID
+) -> GridSurface:
     """The mesh sampled at the nodes of a uniform m x n grid of its uv square.
 
     Each node takes the barycentric interpolation of the triangle that contains it (with a small
@@ -47,8 +49,16 @@ def resample_grid(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, m: in
     r, t = np.linspace(0, 1, m), np.linspace(0, 1, n)
     out = np.zeros((m, n, 3))
     hit = np.full((m, n), -np.inf)
-    _rasterize(np.ascontiguousarray(uv, dtype=float), np.ascontiguousarray(faces, dtype=np.int64),
-               np.ascontiguousarray(vertices, dtype=float), r, t, out, hit, 1e-9)
+    _rasterize(
+        np.ascontiguousarray(uv, dtype=float),
+        np.ascontiguousarray(faces, dtype=np.int64),
+        np.ascontiguousarray(vertices, dtype=float),
+        r,
+        t,
+        out,
+        hit,
+        1e-9,
+    )
     missing = int(np.sum(hit == -np.inf))
     if missing:
         raise InputError(f"{missing} grid nodes fall in no triangle of the parametrization (it has folds or gaps)")

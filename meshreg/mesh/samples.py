@@ -41,7 +41,8 @@ def face_scan_path() -> Path:
 
 def face_scan_crop(radius: float = 60.0):
     """The raw triangles of the face scan within ``radius`` (mm) of its median point, seen along the scan's
-    view axis z: holes, pinched boundary vertices and stray fragments included. Returns vertices (n, 3), faces (m, 3)."""
+    view axis z: holes, pinched boundary vertices and stray fragments included. Returns vertices (n, 3), faces
+    (m, 3)."""
     from .topology import load_mesh
 
     v, f = load_mesh(face_scan_path())
@@ -64,7 +65,9 @@ def remeshed_range_scan(vertices, faces, n_points: int, seed: int, rotation=None
     radius = np.linalg.norm(xy - centre, axis=1).max()
     rim = 2 * np.pi * rng.random(n_points // 20)
     disc = np.sqrt(rng.random(n_points)) * radius, 2 * np.pi * rng.random(n_points)
-    pts = centre + np.vstack([radius * np.c_[np.cos(rim), np.sin(rim)], np.c_[disc[0] * np.cos(disc[1]), disc[0] * np.sin(disc[1])]])
+    pts = centre + np.vstack(
+        [radius * np.c_[np.cos(rim), np.sin(rim)], np.c_[disc[0] * np.cos(disc[1]), disc[0] * np.sin(disc[1])]]
+    )
     tri = Delaunay(pts).simplices
     spacing = np.median(np.linalg.norm(vertices[faces[:, 0], :2] - vertices[faces[:, 1], :2], axis=1))
     gap, _ = cKDTree(xy).query(pts[tri].mean(axis=1))
@@ -107,14 +110,18 @@ def demo_pair():
     """Two meshes of one terrain patch: 2500 and 4000 random vertices, the second rotated and scaled."""
     surface = terrain_function()
     first = random_disk_mesh(surface, 2500, seed=1)
-    second = random_disk_mesh(surface, 4000, seed=2, rotation=Rotation.from_euler("xyz", [30, -20, 75], degrees=True).as_matrix(), scale=2.5)
+    second = random_disk_mesh(
+        surface, 4000, seed=2, rotation=Rotation.from_euler("xyz", [30, -20, 75], degrees=True).as_matrix(), scale=2.5
+    )
     return first, second
 
 
 FACE_ROTATION = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
 
 
-def face_scan_pair(radius: float = 50.0, n_points: int = 20000, seed: int = 1, rotation=FACE_ROTATION, scale: float = 0.01):
+def face_scan_pair(
+    radius: float = 50.0, n_points: int = 20000, seed: int = 1, rotation=FACE_ROTATION, scale: float = 0.01
+):
     """Two meshes of one real surface: the raw face-scan crop (unused vertices dropped) and a re-triangulated,
     rotated, scaled copy. Returns (vertices, faces), (vertices, faces, xy) of the copy (see
     :func:`remeshed_range_scan`) and the true rotation."""

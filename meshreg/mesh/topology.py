@@ -79,7 +79,9 @@ class DiskMesh:
         """Indices in this disk of vertices given by their ids in the input mesh (InputError if dropped)."""
         ids = np.asarray(ids, dtype=np.int64)
         if self.aliases is not None:
-            ids = self.aliases[np.clip(ids, 0, len(self.aliases) - 1)] + np.where((ids < 0) | (ids >= len(self.aliases)), -len(self.aliases) - 1, 0)
+            ids = self.aliases[np.clip(ids, 0, len(self.aliases) - 1)] + np.where(
+                (ids < 0) | (ids >= len(self.aliases)), -len(self.aliases) - 1, 0
+            )
         at = np.clip(np.searchsorted(self.vertex_map, ids), 0, len(self.vertex_map) - 1)
         if np.any(self.vertex_map[at] != ids):
             raise InputError(f"vertex ids {ids[self.vertex_map[at] != ids].tolist()} are not in the (cleaned) mesh")
@@ -119,7 +121,9 @@ def _edges(faces):
     return e, uniq, inverse.ravel(), counts
 
 
-def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = True, fill_holes: bool | None = None) -> DiskMesh:
+def prepare_disk(
+    vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = True, fill_holes: bool | None = None
+) -> DiskMesh:
     """Check (and with ``cleanup``, repair what is safe) that a mesh is a topological disk.
 
     Cleanup, always reported: drop degenerate (zero-area) triangles, keep the largest connected
@@ -152,6 +156,37 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
     'filled 1 hole (32 boundary vertices)'
     """
     fill_holes = cleanup if fill_holes is None else fill_holes
+    v, f = _checked_arrays(vertices, faces)
+    report = []
+    f = _drop_degenerate(v, f, cleanup, report)
+    aliases, pieces = _weld_pieces(v, f) if cleanup else (None, 0)
+    if aliases is not None:
+        f = aliases[f]
+        f = f[~_repeated_corner(f)]
+        welded = int(np.sum(aliases != np.arange(len(v))))
+        report.append(f"welded {welded} coincident vertices (the mesh came in {pieces} pieces)")
+    f = _consistent_orientation(f, cleanup, report)
+    f = _unpinched(f, cleanup, report)
+    n = len(v)
+    f = _largest_component(f, n, cleanup, report)
+    loops = _boundary_loops(f)
+    if len(loops) > 1 and fill_holes:
+        v, f, added, rim = _fill_holes(v, f, loops)
+        report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
+    if cleanup:
+        f = _without_ears(f, report)
+    used = np.unique(f)
+    original = used[used < n]
+    if len(original) < n:
+        report.append(f"dropped {n - len(original)} unreferenced vertices")
+    remap = np.full(len(v), -1)
+    remap[used] = np.arange(len(used))
+    v, f = v[used], remap[f]
+    return DiskMesh(v, f, np.array(_single_loop(v, f)), original, report, aliases)
+
+
+def _checked_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (n, 3) float and faces (m, 3) int, refused when misshapen, not finite or out of range."""
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
@@ -160,29 +195,44 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
         raise InputError("the mesh has NaN or infinite vertex coordinates: remove or fix those vertices")
     if f.min() < 0 or f.max() >= len(v):
         raise InputError("faces refer to vertices that do not exist")
-    report = []
+    return v, f
+
+
+def _drop_degenerate(v: np.ndarray, f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
+    """Faces without the zero-area ones (or an error without ``cleanup``)."""
     area = triangle_areas(v, f)
     bad = (area <= 1e-14 * max(area.max(), 1e-300)) | _repeated_corner(f)
-    if bad.any():
-        if not cleanup:
-            raise InputError(f"the mesh has {int(bad.sum())} degenerate (zero-area) triangles: remove them or allow cleanup")
-        f = f[~bad]
-        report.append(f"removed {int(bad.sum())} degenerate triangles")
-    aliases, pieces = _weld_pieces(v, f) if cleanup else (None, 0)
-    if aliases is not None:
-        f = aliases[f]
-        f = f[~_repeated_corner(f)]
-        report.append(f"welded {int(np.sum(aliases != np.arange(len(v))))} coincident vertices (the mesh came in {pieces} pieces)")
+    if not bad.any():
+        return f
+    if not cleanup:
+        raise InputError(
+            f"the mesh has {int(bad.sum())} degenerate (zero-area) triangles: remove them or allow cleanup"
+        )
+    report.append(f"removed {int(bad.sum())} degenerate triangles")
+    return f[~bad]
+
+
+def _consistent_orientation(f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
+    """Faces wound like their neighbours; non-manifold edges are refused."""
     edges = _edges(f)
     counts = edges[3]
     if np.any(counts > 2):
-        raise InputError(f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first")
+        raise InputError(
+            f"the mesh has {int(np.sum(counts > 2))} non-manifold edges (shared by 3+ triangles): repair it first"
+        )
     flipped = _orientation_flips(f, edges)
-    if flipped.any():
-        if not cleanup:
-            raise InputError(f"{int(flipped.sum())} triangles are oriented against their neighbours: fix the winding or allow cleanup")
-        f = np.where(flipped[:, None], f[:, ::-1], f)
-        report.append(f"reoriented {int(flipped.sum())} triangles to agree with their neighbours")
+    if not flipped.any():
+        return f
+    if not cleanup:
+        raise InputError(
+            f"{int(flipped.sum())} triangles are oriented against their neighbours: fix the winding or allow cleanup"
+        )
+    report.append(f"reoriented {int(flipped.sum())} triangles to agree with their neighbours")
+    return np.where(flipped[:, None], f[:, ::-1], f)
+
+
+def _unpinched(f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
+    """With ``cleanup``, faces without the triangles around vertices where the boundary touches itself."""
     for _ in range(10):
         starts, uses = np.unique(_boundary_edges(f)[:, 0], return_counts=True)
         pinched = starts[uses > 1]  # the boundary passes twice through these vertices
@@ -190,46 +240,55 @@ def prepare_disk(vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = Tru
             break
         touching = np.isin(f, pinched).any(axis=1)
         f = f[~touching]
-        report.append(f"removed {int(touching.sum())} triangles around {len(pinched)} vertices where the boundary touches itself")
+        report.append(
+            f"removed {int(touching.sum())} triangles around {len(pinched)} vertices where the boundary touches itself"
+        )
     if len(f) == 0:
         raise InputError("no triangles are left after cleanup: the mesh is not a usable disk")
-    n = len(v)
+    return f
+
+
+def _largest_component(f: np.ndarray, n: int, cleanup: bool, report: list) -> np.ndarray:
+    """The faces of the connected component with the most triangles (an error without ``cleanup``)."""
     labels = _face_components(f, n)
     ncomp = len(np.unique(labels))
-    if ncomp > 1:
-        if not cleanup:
-            raise InputError(f"the mesh has {ncomp} connected components: keep one or allow cleanup")
-        keep = labels == np.bincount(labels).argmax()  # the component with the most triangles
-        report.append(f"kept the largest of {ncomp} components ({int(keep.sum())} of {len(f)} triangles)")
-        f = f[keep]
-    loops = _boundary_loops(f)
-    if len(loops) > 1 and fill_holes:
-        v, f, added, rim = _fill_holes(v, f, loops)
-        report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
-    if cleanup and len(f) > 1:  # one pass: peeling again would eat thin strips triangle by triangle
-        _, _, inverse, counts = _edges(f)
-        ears = (counts[inverse] == 1).reshape(3, -1).sum(axis=0) >= 2  # two sides on the boundary
-        if ears.any() and not ears.all():
-            f = f[~ears]
-            report.append(f"removed {int(ears.sum())} boundary ears (triangles with two sides on the boundary)")
-    used = np.unique(f)
-    original = used[used < n]
-    if len(original) < n:
-        report.append(f"dropped {n - len(original)} unreferenced vertices")
-    remap = np.full(len(v), -1)
-    remap[used] = np.arange(len(used))
-    v, f = v[used], remap[f]
+    if ncomp == 1:
+        return f
+    if not cleanup:
+        raise InputError(f"the mesh has {ncomp} connected components: keep one or allow cleanup")
+    keep = labels == np.bincount(labels).argmax()
+    report.append(f"kept the largest of {ncomp} components ({int(keep.sum())} of {len(f)} triangles)")
+    return f[keep]
+
+
+def _without_ears(f: np.ndarray, report: list) -> np.ndarray:
+    """Faces without boundary ears (two sides on the boundary), in one pass: peeling again would eat thin strips
+    triangle by triangle."""
+    if len(f) <= 1:
+        return f
+    _, _, inverse, counts = _edges(f)
+    ears = (counts[inverse] == 1).reshape(3, -1).sum(axis=0) >= 2
+    if not ears.any() or ears.all():
+        return f
+    report.append(f"removed {int(ears.sum())} boundary ears (triangles with two sides on the boundary)")
+    return f[~ears]
+
+
+def _single_loop(v: np.ndarray, f: np.ndarray) -> list:
+    """The one boundary loop of a disk; a closed surface, several loops or another Euler characteristic is refused."""
     loops = _boundary_loops(f)
     if not loops:
         raise InputError("the surface is closed (no boundary): cut it open first (a disk is needed)")
     if len(loops) > 1:
         sizes = sorted((len(x) for x in loops), reverse=True)
-        raise InputError(f"the mesh has {len(loops)} boundary loops (sizes {sizes[:5]}): fill its holes so that one loop is left")
+        raise InputError(
+            f"the mesh has {len(loops)} boundary loops (sizes {sizes[:5]}): fill its holes so that one loop is left"
+        )
     _, uniq, _, _ = _edges(f)
     euler = len(v) - len(uniq) + len(f)
     if euler != 1:
         raise InputError(f"the mesh is not a disk (Euler characteristic {euler}, a disk has 1)")
-    return DiskMesh(v, f, np.array(loops[0]), original, report, aliases)
+    return loops[0]
 
 
 def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
@@ -278,7 +337,8 @@ def _orientation_flips(faces, edges) -> np.ndarray:
     fa, fb = a % m, b % m
     graph = sp.csr_matrix((np.ones(len(fa)), (fa, fb)), shape=(m, m))
     parity = np.full(m, -1)
-    same_lookup = dict(zip(zip(np.minimum(fa, fb).tolist(), np.maximum(fa, fb).tolist()), same.tolist()))
+    keys = zip(np.minimum(fa, fb).tolist(), np.maximum(fa, fb).tolist(), strict=True)
+    same_lookup = dict(zip(keys, same.tolist(), strict=True))
     for root in range(m):
         if parity[root] >= 0:
             continue

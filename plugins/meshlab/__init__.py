@@ -23,13 +23,18 @@ import numpy as np
 
 from meshreg.errors import InputError
 from meshreg.mesh.correspond import similarity_transform
+from meshreg.options import Options
 
 from .._common import register_arrays, require
 
 pymeshlab = require("pymeshlab", "meshlab")
 
 PREPARE_SCRIPT = Path(__file__).with_name("prepare_scan.mlx")
-LAYER_NAMES = {"first": "meshreg first (coloured)", "second": "meshreg second (coloured)", "registered": "meshreg registered second"}
+LAYER_NAMES = {
+    "first": "meshreg first (coloured)",
+    "second": "meshreg second (coloured)",
+    "registered": "meshreg registered second",
+}
 
 
 def _layer(ms, mesh_id: int, prepare: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +60,7 @@ def _add(ms, name: str, vertices: np.ndarray, faces: np.ndarray, colors: np.ndar
     return ms.current_mesh_id()
 
 
-def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, **params) -> dict:
+def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, options: Options | None = None) -> dict:
     """Register layer ``first_id`` (rotated) with layer ``second_id`` (reparametrized) and add the results.
 
     Parameters
@@ -65,8 +70,8 @@ def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, **pa
         Layer ids of the two meshes.
     prepare : bool
         First run ``prepare_scan.mlx`` on copies of both layers (raw scans -> disks).
-    **params
-        As for :func:`meshreg.mesh.correspond.register_meshes`.
+    options : meshreg.Options, optional
+        Mesh preparation and registration settings.
 
     Returns
     -------
@@ -77,11 +82,17 @@ def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, **pa
         ``cleanup`` (what meshreg's own cleanup still had to do to each mesh).
     """
     first, second = _layer(ms, first_id, prepare), _layer(ms, second_id, prepare)
-    mr, c1, c2, (rv, rf, rc) = register_arrays(first, second, **params)
+    mr, c1, c2, (rv, rf, rc) = register_arrays(first, second, options)
     layers = {
         "first": _add(ms, LAYER_NAMES["first"], *first, c1),
         "second": _add(ms, LAYER_NAMES["second"], *second, c2),
         "registered": _add(ms, LAYER_NAMES["registered"], rv, rf, rc),
     }
-    return {"energy": mr.result.energy, "distance": mr.result.distance, "transformation": similarity_transform(mr),
-            "registration": mr.result, "layers": layers, "cleanup": {k: mr.info[k]["cleanup"] for k in ("first", "second")}}
+    return {
+        "energy": mr.result.energy,
+        "distance": mr.result.distance,
+        "transformation": similarity_transform(mr),
+        "registration": mr.result,
+        "layers": layers,
+        "cleanup": {k: mr.info[k]["cleanup"] for k in ("first", "second")},
+    }

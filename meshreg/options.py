@@ -1,0 +1,414 @@
+"""Every setting of a registration, in one typed, validated object, and the table the command line is built from.
+
+:class:`Options` holds what a user sets (the mode, the DP window, the basis, the mesh preparation) and
+:class:`Advanced` the rare numerics (tolerances, iteration caps). Both are frozen dataclasses checked once, when
+they are made: an invalid value raises :class:`~meshreg.errors.InputError` naming the valid range. The same
+object travels from the command line (or the API, the adapters, the distance matrix) to the solvers.
+
+:data:`FLAGS` is the command line's view of these fields: one row per flag. :func:`add_flags` builds the
+argparse options from it and :func:`options_from_args` reads them back, so the flags cannot drift from the
+fields. Adding an option is one field here plus one row in :data:`FLAGS`.
+
+Examples
+--------
+>>> opts = Options(mode="dp+gd", window=8)
+>>> opts.window, opts.advanced.max_rounds
+(8, 10)
+>>> Options(window=0)
+Traceback (most recent call last):
+...
+meshreg.errors.InputError: window must be an integer from 1 to ..., got 0
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+
+from .errors import InputError
+
+MODES = ("auto", "dp", "gd", "dp+gd")
+SOLVERS = ("gauss-newton", "gradient")
+REFINEMENTS = ("nodes", "none")
+WEIGHTS = ("mean-value", "cotangent")
+MAX_BASIS = 40  # KL beyond this gives 2 (KL + 2 KL^2) > 6000 fields: more than any grid here resolves
+MAX_WINDOW = 10_000
+
+
+@dataclass(frozen=True)
+class StepParams:
+    """Numerics of one descent round (:func:`meshreg.descent.descend`, :func:`meshreg.descent.gauss_newton`).
+
+    Attributes
+    ----------
+    basis : int
+        KL of the Riseth basis (2 (KL + 2 KL^2) fields) when no basis is given. Default 5 (110 fields).
+    max_iterations : int
+        Most iterations per round (between two Kabsch steps). Default 200.
+    rel_tol, abs_tol : float
+        A round stops when an iteration lowers E by less than ``rel_tol * E + abs_tol``. Defaults 1e-3, 1e-9.
+    grad_tol : float
+        A round stops when the L^2 norm of the gradient is below this. Default 1e-10.
+    zero_energy : float
+        E at or below this counts as zero: stop. Default 1e-10.
+    step_fraction : float
+        The step starts at this fraction of the det / Gale-Nikaido bound. Default 0.5.
+    max_backtracks : int
+        Most halvings of the step (or increases of the damping) in one iteration. Default 30.
+    damping : float
+        Initial Levenberg-Marquardt damping of the Gauss-Newton solver. Default 1e-3.
+    cg_iterations : int
+        Most conjugate-gradient iterations of a Gauss-Newton step in a local basis. Default 100.
+    """
+
+    basis: int = 5
+    max_iterations: int = 200
+    rel_tol: float = 1e-3
+    abs_tol: float = 1e-9
+    grad_tol: float = 1e-10
+    zero_energy: float = 1e-10
+    step_fraction: float = 0.5
+    max_backtracks: int = 30
+    damping: float = 1e-3
+    cg_iterations: int = 100
+
+
+@dataclass(frozen=True)
+class Advanced:
+    """The rare numerics of a registration (defaults suit grids of 21 to 401 nodes per axis).
+
+    Attributes
+    ----------
+    dp_rounds : int
+        Most DP + Kabsch rounds, and most r/t passes of the DP stage in mode "auto". Default 10.
+    max_rounds : int
+        Most descent + Kabsch rounds per stage (Step 3 of the paper's outline). Default 10.
+    round_tol : float
+        Rounds stop when the Kabsch step after a descent lowers E by less than ``round_tol * E``. Default 1e-4.
+    start_margin : float
+        Mode "auto": starts whose coarse DP energy is within this fraction of the best one are registered in
+        full (at most ``Options.max_starts``). Default 0.5.
+    max_iterations, rel_tol, abs_tol, grad_tol, zero_energy, step_fraction, max_backtracks, damping, cg_iterations
+        Numerics of each descent round: see :class:`StepParams`. ``abs_tol`` defaults to 1e-9 because E itself
+        is only accurate to about 1e-9 on 101 x 101 grids (the exact h of the paper's same-shape pairs gives
+        E = 4e-10 to 2e-9).
+    refine_iterations : int
+        Most iterations per round of each refinement level (B-spline and node bases). Default 10.
+    fine_iterations : int
+        On grids above 101 nodes per axis, most node-refinement iterations on the full grid after the descent
+        on the coarse one. Default 5.
+    refine_rel_tol : float
+        ``rel_tol`` of the refinement levels. Default 1e-2: on the paper's different-shape pairs the levels
+        otherwise spend two thirds of their time on 0.2% steps; same-shape pairs, whose E falls by orders of
+        magnitude, are not affected.
+    """
+
+    dp_rounds: int = 10
+    max_rounds: int = 10
+    round_tol: float = 1e-4
+    start_margin: float = 0.5
+    max_iterations: int = 200
+    rel_tol: float = 1e-3
+    abs_tol: float = 1e-9
+    grad_tol: float = 1e-10
+    zero_energy: float = 1e-10
+    step_fraction: float = 0.5
+    max_backtracks: int = 30
+    damping: float = 1e-3
+    cg_iterations: int = 100
+    refine_iterations: int = 10
+    fine_iterations: int = 5
+    refine_rel_tol: float = 1e-2
+
+    def __post_init__(self):
+        for name in (
+            "dp_rounds",
+            "max_rounds",
+            "max_iterations",
+            "max_backtracks",
+            "cg_iterations",
+            "refine_iterations",
+            "fine_iterations",
+        ):
+            _integer(name, getattr(self, name), 1, 1_000_000)
+        for name in (
+            "round_tol",
+            "rel_tol",
+            "abs_tol",
+            "grad_tol",
+            "zero_energy",
+            "refine_rel_tol",
+            "damping",
+            "start_margin",
+        ):
+            _number(name, getattr(self, name), 0.0, math.inf)
+        _number("step_fraction", self.step_fraction, 0.0, 1.0, low_open=True)
+
+    def steps(self, basis: int, **changes) -> StepParams:
+        """The :class:`StepParams` of a descent round in the basis KL = ``basis`` (``changes`` override fields)."""
+        names = [f.name for f in fields(StepParams) if f.name != "basis"]
+        return StepParams(basis=basis, **{**{n: getattr(self, n) for n in names}, **changes})
+
+
+@dataclass(frozen=True)
+class Options:
+    """Every setting of a registration; validated when made.
+
+    Attributes
+    ----------
+    mode : {"auto", "dp", "gd", "dp+gd"}
+        How to register (see :mod:`meshreg.register`). Default "auto".
+    window : int
+        DP window W: steps (dk, dl) with 1 <= dk, dl <= W. Default 10.
+    basis : int
+        KL of the Riseth basis of the descent (2 (KL + 2 KL^2) fields). Default 5 (110 fields).
+    solver : {"gauss-newton", "gradient"}
+        Direction of the basis descent: Gauss-Newton (moves R and h together) or the paper's steepest
+        descent. Default "gauss-newton".
+    refine : {"nodes", "none"}
+        After the basis descent, refine in B-spline bases and then node by node. Default "nodes".
+    search : bool
+        Mode "auto": rank starting rotations and symmetries of the square by a coarse DP. Default True.
+    symmetries : bool
+        Mode "auto" with ``search``: also try the 8 symmetries of the square on the second surface. Default True.
+    max_starts : int
+        Mode "auto": most ranked starts registered in full (see ``Advanced.start_margin``). Default 3.
+    start_basis : int
+        Mode "gd": a second descent path starts in the coarser basis KL = ``start_basis``; ``>= basis`` turns
+        it off. Default 3.
+    smoothing : tuple of float
+        Mode "gd": a third path descends through both surfaces blurred by Gaussians of these standard
+        deviations (side lengths of the square, largest first); () turns it off. Default (0.1,).
+    resolution : int
+        Meshes are resampled on ``resolution`` x ``resolution`` grids. Default 101.
+    weights : {"mean-value", "cotangent"}
+        Laplacian weights of the map of a mesh to the square. Default "mean-value" (bijective).
+    cleanup : bool
+        Repair meshes (holes, pieces, pinched vertices, ears) instead of refusing them. Default True.
+    corners1, corners2 : tuple of 4 int or None
+        Corner vertex ids of each mesh's boundary (ids in the mesh as given). Default: chosen.
+    corner_search : int
+        Trial corner placements of the second mesh when the boundaries have no four clear corners; 0 turns
+        the search off. Default 8.
+    advanced : Advanced
+        The rare numerics.
+    """
+
+    mode: str = "auto"
+    window: int = 10
+    basis: int = 5
+    solver: str = "gauss-newton"
+    refine: str = "nodes"
+    search: bool = True
+    symmetries: bool = True
+    max_starts: int = 3
+    start_basis: int = 3
+    smoothing: tuple[float, ...] = (0.1,)
+    resolution: int = 101
+    weights: str = "mean-value"
+    cleanup: bool = True
+    corners1: tuple[int, int, int, int] | None = None
+    corners2: tuple[int, int, int, int] | None = None
+    corner_search: int = 8
+    advanced: Advanced = field(default_factory=Advanced)
+
+    def __post_init__(self):
+        for name, allowed in (("mode", MODES), ("solver", SOLVERS), ("refine", REFINEMENTS), ("weights", WEIGHTS)):
+            if getattr(self, name) not in allowed:
+                raise InputError(f"unknown {name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
+        _integer("window", self.window, 1, MAX_WINDOW)
+        _integer("basis", self.basis, 1, MAX_BASIS)
+        _integer("start_basis", self.start_basis, 1, MAX_BASIS)
+        _integer("max_starts", self.max_starts, 1, 8)
+        _integer("resolution", self.resolution, 3, 100_000)
+        _integer("corner_search", self.corner_search, 0, 1000)
+        smoothing = tuple(self.smoothing)
+        if not all(isinstance(s, (int, float)) and math.isfinite(s) and 0 < s <= 1 for s in smoothing):
+            raise InputError(f"smoothing must be standard deviations in (0, 1] (side lengths), got {smoothing}")
+        object.__setattr__(self, "smoothing", tuple(float(s) for s in smoothing))
+        for name in ("corners1", "corners2"):
+            value = getattr(self, name)
+            if value is not None:
+                if len(value) != 4 or not all(_is_int(v) and v >= 0 for v in value):
+                    raise InputError(f"{name} must be four vertex ids, got {value}")
+                object.__setattr__(self, name, tuple(int(v) for v in value))
+        if not isinstance(self.advanced, Advanced):
+            raise InputError(f"advanced must be a meshreg.Advanced, got {type(self.advanced).__name__}")
+
+    def replace(self, **changes) -> Options:
+        """A copy with some fields changed (validated again)."""
+        return replace(self, **changes)
+
+    def steps(self, basis: int | None = None, **changes) -> StepParams:
+        """:class:`StepParams` of the descent rounds (basis KL = ``basis``, default ``self.basis``)."""
+        return self.advanced.steps(self.basis if basis is None else basis, **changes)
+
+    def as_dict(self) -> dict:
+        """Every field, the advanced ones included, as one flat JSON-ready dict."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "advanced"}
+        out["smoothing"] = list(self.smoothing)
+        for name in ("corners1", "corners2"):
+            out[name] = None if out[name] is None else list(out[name])
+        return {**out, **asdict(self.advanced)}
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) or type(value).__name__.startswith(("int", "uint"))
+
+
+def _integer(name: str, value, low: int, high: int) -> None:
+    if not _is_int(value) or not low <= value <= high:
+        raise InputError(f"{name} must be an integer from {low} to {high}, got {value!r}")
+
+
+def _number(name: str, value, low: float, high: float, low_open: bool = False) -> None:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or value < low or (low_open and value == low) or value > high:
+        bound = f"({low}" if low_open else f"[{low}"
+        raise InputError(f"{name} must be a finite number in {bound}, {high}], got {value!r}")
+
+
+@dataclass(frozen=True)
+class Flag:
+    """One command-line flag: the option field it sets (``advanced.x`` for an :class:`Advanced` field)."""
+
+    flag: str
+    field: str
+    help: str
+    type: type | None = None
+    nargs: int | str | None = None
+    metavar: str | tuple | None = None
+    choices: tuple | None = None
+    group: str = "registration"
+    const: object = None  # a flag without a value sets this (e.g. --no-cleanup sets cleanup False)
+
+
+FLAGS: tuple[Flag, ...] = (
+    Flag("--mode", "mode", "how to register (default auto)", str, choices=MODES),
+    Flag("--window", "window", "DP window W (default 10)", int, metavar="W"),
+    Flag("--basis", "basis", "KL of the Riseth basis, 2 (KL + 2 KL^2) fields (default 5)", int, metavar="KL"),
+    Flag("--solver", "solver", "direction of the basis descent (default gauss-newton)", str, choices=SOLVERS),
+    Flag("--refine", "refine", "refinement after the basis descent (default nodes)", str, choices=REFINEMENTS),
+    Flag(
+        "--max-starts",
+        "max_starts",
+        "mode auto: most ranked starts registered in full (default 3; 1 = the best-ranked only)",
+        int,
+        metavar="K",
+    ),
+    Flag(
+        "--max-rounds", "advanced.max_rounds", "most descent + Kabsch rounds per stage (default 10)", int, metavar="N"
+    ),
+    Flag(
+        "--smoothing",
+        "smoothing",
+        "mode gd: Gaussian scale-space levels of its third path, in side lengths, "
+        "largest first (default 0.1; give none to turn it off)",
+        float,
+        nargs="*",
+        metavar="SIGMA",
+    ),
+    Flag(
+        "--start-basis",
+        "start_basis",
+        "mode gd: KL of the coarse basis its second path starts in (default 3)",
+        int,
+        metavar="KL",
+    ),
+    Flag(
+        "--resolution",
+        "resolution",
+        "meshes are resampled on N x N grids (default 101)",
+        int,
+        metavar="N",
+        group="meshes",
+    ),
+    Flag(
+        "--weights",
+        "weights",
+        "Laplacian weights of the map to the square (default mean-value)",
+        str,
+        choices=WEIGHTS,
+        group="meshes",
+    ),
+    Flag(
+        "--no-cleanup",
+        "cleanup",
+        "refuse to repair meshes (holes, pieces, ears, pinched vertices)",
+        group="meshes",
+        const=False,
+    ),
+    Flag(
+        "--corners1",
+        "corners1",
+        "corner vertex ids of the first mesh's boundary",
+        int,
+        nargs=4,
+        metavar="ID",
+        group="corners",
+    ),
+    Flag(
+        "--corners2",
+        "corners2",
+        "corner vertex ids of the second mesh's boundary",
+        int,
+        nargs=4,
+        metavar="ID",
+        group="corners",
+    ),
+    Flag(
+        "--corner-search",
+        "corner_search",
+        "trial corner placements on round boundaries, 0 = off (default 8)",
+        int,
+        metavar="K",
+        group="meshes",
+    ),
+)
+
+
+def _dest(row: Flag) -> str:
+    return "opt_" + row.field.replace(".", "__")
+
+
+def add_flags(parser, groups=("registration", "meshes", "corners")) -> None:
+    """Add the flags of :data:`FLAGS` in ``groups`` to an argparse parser (defaults left to :class:`Options`)."""
+    sections = {}
+    for row in FLAGS:
+        if row.group not in groups:
+            continue
+        if row.group not in sections:
+            sections[row.group] = parser if row.group == "registration" else parser.add_argument_group(row.group)
+        kwargs = {"dest": _dest(row), "default": None, "help": row.help}
+        if row.const is not None:
+            kwargs.update(action="store_const", const=row.const)
+        else:
+            kwargs.update(
+                {
+                    k: v
+                    for k, v in (
+                        ("type", row.type),
+                        ("nargs", row.nargs),
+                        ("metavar", row.metavar),
+                        ("choices", row.choices),
+                    )
+                    if v is not None
+                }
+            )
+        sections[row.group].add_argument(row.flag, **kwargs)
+
+
+def options_from_args(args, **fixed) -> Options:
+    """The :class:`Options` of parsed arguments: each flag given sets its field; ``fixed`` sets others."""
+    top, advanced = dict(fixed), {}
+    for row in FLAGS:
+        value = getattr(args, _dest(row), None)
+        if value is None:
+            continue
+        if isinstance(value, list):
+            value = tuple(value)
+        if row.field.startswith("advanced."):
+            advanced[row.field.split(".", 1)[1]] = value
+        else:
+            top[row.field] = value
+    return Options(**top, advanced=Advanced(**advanced))

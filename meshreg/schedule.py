@@ -1,0 +1,316 @@
+"""The stages of one registration and their order: the DP stage, the basis descent and the refinement levels.
+
+Every stage alternates with Kabsch (Steps 2-3 of the paper's outline: descend in h, then find the best R for
+that h, until Kabsch stops helping). The descent runs on a work grid of at most :data:`COARSE_NODES` nodes per
+axis; the refinement levels are cubic B-spline bases with :data:`REFINE_KNOTS` knots per axis on the work grid,
+then every node of the full grid. Mode "gd" adds smoothed copies of both surfaces before all that
+(:mod:`meshreg.scale`). Each change of level goes through :func:`carry`: h is upsampled bicubically to the next
+grid and made a valid start there.
+
+:class:`Log` gathers what a run reports: the energies of the full grid after every accepted step, the
+progress callback and the seconds per stage.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from functools import partial
+
+import numpy as np
+
+from .descent import descend, gauss_newton
+from .diffeo import compose, enforce_boundary, is_valid, jacobian_determinant
+from .dp import dp_surface_min
+from .fields import bspline_basis, node_basis, riseth_basis
+from .grid import GridSurface
+from .objective import Objective
+from .options import Options, StepParams
+from .rotation import kabsch
+from .scale import level_nodes, smoothed
+from .spline import GridInterpolator
+
+# grids with more than DP_FULL_NODES nodes along the DP direction use the coarse-to-fine strip DP, its coarse
+# level having about DP_STRIP_NODES nodes
+DP_FULL_NODES = 200
+DP_STRIP_NODES = 50
+START_BLENDS = (0.0, 1e-3, 1e-2, 0.1, 0.5)  # blends toward the identity tried for an invalid descent start
+START_MIN_DET = 1e-3  # smallest det J (per cell; its mean is 1) of a descent start
+REFINE_KNOTS = (12, 24)  # knots per axis of the cubic B-spline refinement levels, before the node level
+COARSE_NODES = 101  # the descent and the B-spline levels run on at most this many nodes per axis
+DP_ROUND_TOL = 1e-4  # the DP stage of mode "auto" alternates directions while E drops by more than this fraction
+
+Progress = Callable[[str, int, float], None]
+
+
+class Log:
+    """What one candidate registration reports: its energies, the progress callback and stage timings.
+
+    Parameters
+    ----------
+    callback : callable, optional
+        ``callback(stage, iteration, E)`` after every accepted step.
+    timings : dict, optional
+        Seconds per stage, shared with the logs made by :meth:`scratch` (and by other candidates).
+    stage : str, optional
+        Report every step under this stage name instead of its own.
+    """
+
+    def __init__(self, callback: Progress | None = None, timings: dict | None = None, stage: str | None = None):
+        self.energies: list[float] = []
+        self.callback = callback
+        self.timings = {} if timings is None else timings
+        self._stage = stage
+
+    def step(self, stage: str, iteration: int, energy: float) -> None:
+        """An accepted step: keep E and report it."""
+        self.energies.append(energy)
+        if self.callback is not None:
+            self.callback(self._stage or stage, iteration, energy)
+
+    def scratch(self, stage: str | None = None) -> Log:
+        """A log for work off the full grid: reports and timings go on, its energies are not kept here."""
+        return Log(self.callback, self.timings, stage or self._stage)
+
+    @contextmanager
+    def clock(self, stage: str):
+        """Add the seconds spent in the block to ``timings[stage]``."""
+        tic = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[stage] = self.timings.get(stage, 0.0) + time.perf_counter() - tic
+
+
+@dataclass
+class Candidate:
+    """One registration in progress: R and h (on the work grid until :meth:`Descent.polish`), E and its log."""
+
+    objective: Objective
+    rotation: np.ndarray
+    h: np.ndarray
+    energy: float
+    log: Log
+    energy_dp: float = float("nan")
+    gd_path: dict | None = None
+    pending: Descent | None = field(default=None, repr=False)  # the refinement still to run
+
+    def polish(self) -> Candidate:
+        """Run the pending refinement (nothing when there is none); returns self."""
+        if self.pending is not None:
+            self.rotation, self.h = self.pending.polish(self.rotation, self.h, self.log)
+            self.energy = self.objective.energy(self.rotation, self.h)
+            self.pending = None
+        if not self.log.energies:
+            self.log.energies.append(self.energy)
+        return self
+
+
+def valid_start(objective: Objective, h: np.ndarray) -> np.ndarray:
+    """h itself when every cell keeps det J >= START_MIN_DET, else the least blend (1 - eps) h + eps id that does.
+
+    The descent needs an orientation-preserving start: a DP path that is flat in places (gamma' = 0) gives
+    cells of zero area, where no step can be accepted.
+    """
+    for eps in START_BLENDS:
+        blended = (1.0 - eps) * h + eps * objective.identity
+        if is_valid(blended) and jacobian_determinant(blended, objective.r, objective.t).min() >= START_MIN_DET:
+            return blended
+    return objective.identity.copy()
+
+
+def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
+    """DP-surface-min along r (the paper); with ``both``, alternate passes along t and r while E drops.
+
+    The DP starts from ``rotation``, or from Kabsch at the identity when it is None. Returns R, h, E.
+    """
+    rounds = options.advanced.dp_rounds
+    rotation, h, energy = _dp_along(objective, rotation, None, options.window, rounds, along_t=False)
+    if both:
+        for p in range(2 * rounds):
+            new_rotation, new_h, new_energy = _dp_along(objective, rotation, h, options.window, rounds, p % 2 == 0)
+            if not is_valid(new_h):  # composing the two directions' steps can collapse cells: keep the last valid h
+                break
+            if new_energy >= energy * (1 - DP_ROUND_TOL):
+                if new_energy < energy:
+                    rotation, h, energy = new_rotation, new_h, new_energy
+                break
+            rotation, h, energy = new_rotation, new_h, new_energy
+    return rotation, h, energy
+
+
+def _dp_along(objective: Objective, rotation, h, window: int, dp_rounds: int, along_t: bool):
+    """One DP-surface-min pass on (q1, (q2, h)) along r or t; returns R, h o (gamma step), E."""
+    q1, q2 = objective.q1, objective.second_on_first_grid(h)
+    r, t = objective.r, objective.t
+    if along_t:
+        q1, q2, r, t = q1.transpose(1, 0, 2), q2.transpose(1, 0, 2), t, r
+    coarsen = len(r) // DP_STRIP_NODES if len(r) > DP_FULL_NODES else 1
+    result = dp_surface_min(q1, q2, r, r, t, window=window, max_rounds=dp_rounds, rotation=rotation, coarsen=coarsen)
+    step = objective.identity.copy()
+    if along_t:
+        step[..., 1] = result.gamma[None, :]
+    else:
+        step[..., 0] = result.gamma[:, None]
+    h = step if h is None else compose(h, objective.r, objective.t, step)
+    return result.rotation, h, objective.energy(result.rotation, h)
+
+
+def carry(h: np.ndarray | None, source: Objective | None, target: Objective) -> np.ndarray:
+    """A descent start on ``target``: h from ``source``'s grid upsampled (bicubic, sides exact) and made a
+    valid start, or the identity when there is no h yet."""
+    if h is None:
+        return target.identity.copy()
+    value = GridInterpolator(h, source.r, source.t)(target.identity[..., 0], target.identity[..., 1])[0]
+    return valid_start(target, enforce_boundary(value))
+
+
+def alternate(objective: Objective, rotation, h, solve, steps: StepParams, rounds: tuple, log: Log, stage: str):
+    """Steps 2-3 of the outline: ``solve`` moves h (and R), then Kabsch moves R, until Kabsch stops helping.
+
+    ``solve(objective, R, h, steps, callback=...)`` is a descent round; ``rounds`` = (most rounds, relative
+    tolerance on the Kabsch step's decrease).
+    """
+    max_rounds, round_tol = rounds
+    if not log.energies:
+        log.energies.append(objective.energy(rotation, h))
+    for _ in range(max_rounds):
+        state = solve(objective, rotation, h, steps, callback=partial(log.step, stage))
+        h = state.h
+        if state.rotation is not None:
+            rotation = state.rotation
+        new_rotation = kabsch(objective.best_rotation_covariance(h))
+        new_energy = objective.energy(new_rotation, h)
+        if new_energy < state.energy:
+            rotation = new_rotation
+            log.step("kabsch", 0, new_energy)
+        energy = min(new_energy, state.energy)
+        # Step 3: another round only when Kabsch lowered E by much (E_L = E after the descent)
+        if energy <= steps.zero_energy or state.energy - energy < round_tol * state.energy + steps.abs_tol:
+            break
+    return rotation, h
+
+
+class Descent:
+    """Steps 2-3 of the outline on one pair: the basis descent on the work grid, then the refinement levels.
+
+    Parameters
+    ----------
+    objective : Objective
+        E on the full grid of the first surface.
+    options : Options
+    work, nodes : Objective, (ndarray, ndarray)
+        E on the work grid and its nodes' indices in the full grid (:func:`work_objective`).
+    """
+
+    def __init__(self, objective: Objective, options: Options, work: Objective, nodes: tuple):
+        self.objective, self.options = objective, options
+        self.work, self.nodes = work, nodes
+        self.solver = descend if options.solver == "gradient" else gauss_newton
+        self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
+
+    def restrict(self, h: np.ndarray) -> np.ndarray:
+        """h at the full grid's nodes -> h at the work grid's nodes."""
+        return h[np.ix_(*self.nodes)]
+
+    def _log(self, target: Objective, log: Log) -> Log:
+        """Energies are kept for the full grid only."""
+        return log if target is self.objective else log.scratch()
+
+    def _bases(self, target: Objective, rotation, h, bases, log: Log):
+        """Descend on ``target`` in the Riseth bases with KL in ``bases``, one after the other."""
+        for kl in bases:
+            solve = partial(self.solver, basis=riseth_basis(kl, target.r, target.t))
+            rotation, h = alternate(target, rotation, h, solve, self.options.steps(), self.rounds, log, "gd")
+        return rotation, h
+
+    def descend(self, rotation, h, bases, log: Log):
+        """Descend from (R, h) on the work grid (h at its nodes) in the Riseth bases KL in ``bases``.
+
+        Returns R and h on the work grid.
+        """
+        with log.clock("gd"):
+            return self._bases(self.work, rotation, h, bases, self._log(self.work, log))
+
+    def polish(self, rotation, h, log: Log):
+        """The refinement levels from (R, h) on the work grid; returns R and h at the full grid's nodes."""
+        objective, work, refine = self.objective, self.work, self.options.refine == "nodes"
+        tic = time.perf_counter()
+        levels = []
+        if refine:
+            levels = [
+                (work, bspline_basis(k, work.r, work.t), False) for k in REFINE_KNOTS if k < min(work.first.shape) // 2
+            ]
+            levels.append((objective, None, True))
+        source = work
+        for target, fields, additive in levels:
+            if target is not source:
+                h = self._enter(h, source, target, rotation, log)
+            fields = node_basis(target.r, target.t) if fields is None else fields
+            rotation, h = self._refine(target, fields, additive, rotation, h, self._log(target, log))
+            source = target
+        if source is not objective:
+            h = self._enter(h, source, objective, rotation, log)
+        if refine:
+            log.timings["refine"] = log.timings.get("refine", 0.0) + time.perf_counter() - tic
+        return rotation, h
+
+    def _enter(self, h, source: Objective, target: Objective, rotation, log: Log) -> np.ndarray:
+        """:func:`carry` to another level; E on the full grid is kept on arrival there."""
+        h = carry(h, source, target)
+        if target is self.objective:
+            log.energies.append(self.objective.energy(rotation, h))
+        return h
+
+    def _refine(self, target: Objective, fields, additive: bool, rotation, h, log: Log):
+        """One refinement level: Gauss-Newton in ``fields`` on ``target``, alternated with Kabsch."""
+        advanced = self.options.advanced
+        cap = advanced.refine_iterations if target is self.work else advanced.fine_iterations
+        steps = self.options.steps(max_iterations=min(advanced.max_iterations, cap), rel_tol=advanced.refine_rel_tol)
+        solve = partial(gauss_newton, basis=fields, additive=additive)
+        return alternate(target, rotation, h, solve, steps, self.rounds, log, "refine")
+
+    def from_identity(self, first: GridSurface, second: GridSurface, path: dict, log: Log):
+        """Mode "gd": one descent path from R = I and h = id, through the smoothed pairs ``path["smoothing"]``,
+        then the original pair and the refinement levels; each level descends in the Riseth bases with KL in
+        ``path["bases"]``, one after the other. Returns R and h at the full grid's nodes."""
+        rotation, h, previous = np.eye(3), None, None
+        if path["smoothing"]:
+            with log.clock("smoothing"):
+                for sigma in path["smoothing"]:
+                    n = level_nodes(sigma, COARSE_NODES)
+                    level = Objective(smoothed(first, sigma, n), smoothed(second, sigma, n))
+                    h = carry(h, previous, level)
+                    rotation, h = self._bases(level, rotation, h, path["bases"], log.scratch("smoothing"))
+                    previous = level
+        h = self._enter(h, previous, self.work, rotation, log) if previous is not None else carry(None, None, self.work)
+        rotation, h = self.descend(rotation, h, path["bases"], log)
+        return self.polish(rotation, h, log)
+
+
+def gd_paths(options: Options) -> list[dict]:
+    """The descent paths of mode "gd": the plain descent in KL = ``basis``; the same after KL = ``start_basis``;
+    and that through the scale space ``smoothing``. The last two only when their options ask for them."""
+    paths = [{"smoothing": [], "bases": [options.basis]}]
+    if options.start_basis < options.basis:
+        paths.append({"smoothing": [], "bases": [options.start_basis, options.basis]})
+    if options.smoothing:
+        paths.append({"smoothing": list(options.smoothing), "bases": paths[-1]["bases"]})
+    return paths
+
+
+def work_objective(objective: Objective, first: GridSurface, second: GridSurface, second_area: float):
+    """E on every f-th node of the first grid (at most COARSE_NODES per axis), and the nodes' indices.
+
+    ``objective`` is E on the full grid of ``first`` and ``second``; it is returned itself when the full grid
+    is small enough.
+    """
+    m, n = objective.first.shape
+    ir = np.unique(np.r_[np.arange(0, m, -(-(m - 1) // (COARSE_NODES - 1))), m - 1])
+    it = np.unique(np.r_[np.arange(0, n, -(-(n - 1) // (COARSE_NODES - 1))), n - 1])
+    if len(ir) == m and len(it) == n:
+        return objective, (ir, it)
+    coarse = GridSurface(first.points[np.ix_(ir, it)], first.r[ir], first.t[it])
+    return Objective(coarse, second, second_area), (ir, it)
