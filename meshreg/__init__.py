@@ -8,12 +8,23 @@
 [[0, 1, 0], [0, 0, 1], [1, 0, 0]]
 """
 
-from .batch import DistanceMatrix, distance_matrix
+from importlib import import_module
+from importlib.metadata import PackageNotFoundError, version
+
 from .errors import InputError
-from .grid import GridSurface, read_grid
 from .options import MODES, Advanced, Options
-from .register import register, register_symmetric, register_with
-from .result import Registration
+
+# the heavy parts (numba kernels, scipy) load on first use, so that `meshreg --help` and `import meshreg` are quick
+_LAZY = {
+    "DistanceMatrix": "batch",
+    "distance_matrix": "batch",
+    "GridSurface": "grid",
+    "read_grid": "grid",
+    "register": "pipeline",
+    "register_symmetric": "pipeline",
+    "register_with": "pipeline",
+    "Registration": "result",
+}
 
 __all__ = [
     "MODES",
@@ -29,4 +40,20 @@ __all__ = [
     "register_symmetric",
     "register_with",
 ]
-__version__ = "0.1.0"
+
+try:
+    __version__ = version("meshreg")
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0+unknown"
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'meshreg' has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__

@@ -27,7 +27,7 @@ import numpy as np
 from .errors import InputError
 from .grid import GridSurface, read_grid
 from .options import Options
-from .register import register_with
+from .pipeline import register_with
 
 CHECKPOINT_SUFFIX = ".checkpoint.jsonl"
 

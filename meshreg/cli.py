@@ -14,8 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
+from . import __version__
 from .errors import InputError
 
 
@@ -29,6 +28,8 @@ def _progress_callback(bar):
 
 
 def _summary(written) -> str:
+    import numpy as np
+
     result = written.result
     rows = [
         f"energy E       {result.energy:.6g}   (squared elastic distance, both surfaces at area 1)",
@@ -52,7 +53,16 @@ def _summary(written) -> str:
 def _registering(quiet: bool):
     from tqdm import tqdm
 
+    if not quiet and not _kernels_cached():
+        print("first run: compiling meshreg's numba kernels (once; about 20-40 s)", file=sys.stderr)
     return tqdm(desc="registering", unit=" steps", disable=quiet, leave=False)
+
+
+def _kernels_cached() -> bool:
+    """Whether numba has cached the compiled kernels of every module that has them (else the first run compiles)."""
+    package = Path(__file__).parent
+    modules = ("spline", "dp", "mesh/resample", "mesh/locate")
+    return all(any((package / m).parent.glob(f"__pycache__/{Path(m).name}.*.nbi")) for m in modules)
 
 
 def cmd_register(args) -> int:
@@ -68,6 +78,7 @@ def cmd_register(args) -> int:
             options,
             grid_shape=args.grid,
             symmetric=args.symmetric,
+            html=args.html,
             callback=_progress_callback(bar),
         )
     for note in written.notes:
@@ -130,6 +141,13 @@ def cmd_matrix(args) -> int:
     return 0
 
 
+def cmd_view(args) -> int:
+    from .outputs import view_outputs
+
+    print(f"written        {view_outputs(args.output)}")
+    return 0
+
+
 def cmd_paper(args) -> int:
     from .paper import format_table, run_paper
 
@@ -142,11 +160,12 @@ def build_parser() -> argparse.ArgumentParser:
     from .options import MODES, add_flags
 
     parser = argparse.ArgumentParser(prog="meshreg", description="Elastic shape registration of surfaces.")
+    parser.add_argument("--version", action="version", version=f"meshreg {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     reg = sub.add_parser("register", help="register two surfaces (two disk meshes or two grid files)")
     reg.add_argument(
-        "first", help="first surface (rotated): a mesh (.ply .obj .stl .off .glb) or a grid (.npy .npz text)"
+        "first", help="first surface (rotated): a mesh (.ply .obj .stl .off .glb .gltf) or a grid (.npy .npz text)"
     )
     reg.add_argument("second", help="second surface (reparametrized)")
     reg.add_argument(
@@ -161,8 +180,13 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument(
         "--symmetric", action="store_true", help="also register SECOND onto FIRST and report both energies"
     )
+    reg.add_argument("--html", action="store_true", help="meshes: also write view.html, an interactive page")
     reg.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     reg.set_defaults(func=cmd_register)
+
+    view = sub.add_parser("view", help="write OUT/view.html, an interactive page of a mesh registration in OUT")
+    view.add_argument("output", metavar="OUT", help="the output directory of a `meshreg register` of two meshes")
+    view.set_defaults(func=cmd_view)
 
     demo = sub.add_parser(
         "demo", help="register two sample terrain meshes and write coloured meshes, result and figures"

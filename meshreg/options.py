@@ -80,7 +80,8 @@ class Advanced:
     Attributes
     ----------
     dp_rounds : int
-        Most DP + Kabsch rounds, and most r/t passes of the DP stage in mode "auto". Default 10.
+        Most DP + Kabsch rounds of a DP pass; in mode "auto" also half the most passes along t and r that follow the
+        first pass along r. Default 10.
     max_rounds : int
         Most descent + Kabsch rounds per stage (Step 3 of the paper's outline). Default 10.
     round_tol : float
@@ -93,7 +94,8 @@ class Advanced:
         is only accurate to about 1e-9 on 101 x 101 grids (the exact h of the paper's same-shape pairs gives
         E = 4e-10 to 2e-9).
     refine_iterations : int
-        Most iterations per round of each refinement level (B-spline and node bases). Default 10.
+        Most iterations per round of each refinement level (cubic B-spline bases of 12 and 24 functions per axis,
+        and the node basis). Default 10.
     fine_iterations : int
         On grids above 101 nodes per axis, most node-refinement iterations on the full grid after the descent
         on the coarse one. Default 5.
@@ -157,7 +159,7 @@ class Options:
     Attributes
     ----------
     mode : {"auto", "dp", "gd", "dp+gd"}
-        How to register (see :mod:`meshreg.register`). Default "auto".
+        How to register (see :mod:`meshreg.pipeline`). Default "auto".
     window : int
         DP window W: steps (dk, dl) with 1 <= dk, dl <= W. Default 10.
     basis : int

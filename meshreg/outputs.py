@@ -61,6 +61,7 @@ def register_files(
     *,
     grid_shape=None,
     symmetric: bool = False,
+    html: bool = False,
     callback: Progress | None = None,
 ) -> Written:
     """Register two files (two grid files or two disk meshes, by suffix) and write the outputs to ``out``.
@@ -75,6 +76,8 @@ def register_files(
         (M, N) of text grid files without a header line.
     symmetric : bool
         Grids: also register the second onto the first (``result_reverse.npz``).
+    html : bool
+        Meshes: also write the interactive page ``view.html``.
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
     """
@@ -87,8 +90,10 @@ def register_files(
     if any(is_mesh):
         if not all(is_mesh):
             raise InputError("give two meshes or two grid files, not one of each")
+        if symmetric:
+            raise InputError("--symmetric registers grid files both ways; for meshes, run register twice")
         meshes = [load_mesh(p) for p in paths]
-        return write_mesh_registration(meshes[0], meshes[1], output_dir(out, paths), options, callback)
+        return write_mesh_registration(meshes[0], meshes[1], output_dir(out, paths), options, callback, html)
     grids = [read_grid(p, grid_shape) for p in paths]
     return write_grid_registration(grids[0], grids[1], output_dir(out, paths), options, symmetric, callback)
 
@@ -97,7 +102,7 @@ def write_grid_registration(
     first, second, out: Path, options: Options, symmetric: bool = False, callback: Progress | None = None
 ) -> Written:
     """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result)."""
-    from .register import register_with
+    from .pipeline import register_with
     from .viz import plot_registration
 
     result = register_with(first, second, options, callback)
@@ -108,6 +113,7 @@ def write_grid_registration(
         result.energy_history,
         out / FIGURE_FILE,
         title=f"{options.mode}: E = {result.energy:.3g}",
+        stages=result.energy_stages,
     )
     written = Written(result, [out / RESULT_FILE, out / FIGURE_FILE])
     if symmetric:
@@ -117,9 +123,17 @@ def write_grid_registration(
     return written
 
 
-def write_mesh_registration(first, second, out: Path, options: Options, callback: Progress | None = None) -> Written:
-    """Register two (vertices, faces) meshes and write coloured meshes, ``result.npz`` and both figures."""
-    from .mesh.correspond import register_meshes, similarity_transform
+def write_mesh_registration(
+    first, second, out: Path, options: Options, callback: Progress | None = None, html: bool = False
+) -> Written:
+    """Register two (vertices, faces) meshes and write coloured meshes, ``result.npz``, both figures and, with
+    ``html``, the interactive page ``view.html``."""
+    return _write_mesh_registration(first, second, out, options, callback, html)[0]
+
+
+def _write_mesh_registration(first, second, out: Path, options: Options, callback=None, html: bool = False):
+    """:func:`write_mesh_registration`, also returning the MeshRegistration."""
+    from .mesh.correspond import matched_points, register_meshes, similarity_transform
     from .mesh.export import colored_outputs, write_ply
     from .viz import plot_meshes, plot_registration
 
@@ -131,8 +145,20 @@ def write_mesh_registration(first, second, out: Path, options: Options, callback
     write_ply(out / "registered.ply", *registered)
     uv1 = mr.first.to_input(mr.uv1, len(v1), [np.nan, np.nan])
     uv2 = mr.second.to_input(mr.uv2, len(v2), [np.nan, np.nan])
-    mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)
+    on_second, on_first = matched_points(mr)
+    on_second = mr.first.to_input(on_second, len(v1), [np.nan] * 3)
+    on_first = mr.second.to_input(on_first, len(v2), [np.nan] * 3)
+    transform = similarity_transform(mr)
+    mr.result.save(
+        out / RESULT_FILE,
+        uv_first=uv1,
+        uv_second=uv2,
+        matched_first=on_second,
+        matched_second=on_first,
+        transform=transform,
+    )
     energy = mr.result.energy
+    gap = np.linalg.norm(v1 @ transform[:3, :3].T + transform[:3, 3] - on_second, axis=1)
     plot_meshes(
         out / "meshes.png",
         v1,
@@ -141,8 +167,9 @@ def write_mesh_registration(first, second, out: Path, options: Options, callback
         v2,
         f2,
         c2,
-        title=f"E = {energy:.3g}: corresponding points share a colour",
-        second_to_first=np.linalg.inv(similarity_transform(mr)),
+        title=f"E = {energy:.3g}: corresponding points share a colour and a checkerboard square",
+        second_to_first=np.linalg.inv(transform),
+        distance=gap / np.sqrt(mr.grids[1].area()),
     )
     g1, g2 = mr.grids
     plot_registration(
@@ -151,6 +178,7 @@ def write_mesh_registration(first, second, out: Path, options: Options, callback
         mr.result.energy_history,
         out / FIGURE_FILE,
         title=f"E = {energy:.3g}",
+        stages=mr.result.energy_stages,
     )
     notes = []
     for name, info in mr.info.items():
@@ -158,21 +186,78 @@ def write_mesh_registration(first, second, out: Path, options: Options, callback
         if info["flipped"]:
             notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
     files = [out / RESULT_FILE, out / FIGURE_FILE, *(out / name for name in MESH_FILES)]
-    return Written(mr.result, files, notes)
+    if html:
+        from .view import VIEW_FILE, write_view
+
+        files.append(
+            write_view(
+                out / VIEW_FILE,
+                (v1, f1, c1),
+                (v2, f2, c2),
+                (on_second, on_first),
+                np.linalg.inv(transform),
+                title=f"E = {energy:.3g}: hover a point to see its match",
+            )
+        )
+    return Written(mr.result, files, notes), mr
 
 
-def run_demo(out, options: Options | None = None, callback: Progress | None = None) -> Written:
+def run_demo(out, options: Options | None = None, callback: Progress | None = None, html: bool = True) -> Written:
     """``meshreg demo``: a terrain patch (matplotlib's Jacksboro DEM) meshed twice with different random vertices,
-    the second rotated, scaled and shifted; both written to ``out/inputs`` and registered into ``out``."""
+    the second rotated, scaled and shifted; both written to ``out/inputs`` and registered into ``out``. The notes
+    compare the answer with the motion applied and with the true correspondence."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    from .mesh.correspond import matched_points, similarity_transform
     from .mesh.export import write_ply
-    from .mesh.samples import demo_pair
+    from .mesh.samples import DEMO_ROTATION, DEMO_SCALE, demo_pair
+    from .rotation import angle_between
 
     out = output_dir(out, [])
-    (v1, f1, _), (v2, f2, _) = demo_pair()
+    (v1, f1, p1), (v2, f2, p2) = demo_pair()
     inputs = out / "inputs"
     inputs.mkdir(exist_ok=True)
     write_ply(inputs / "terrain_a.ply", v1, f1, np.full((len(v1), 3), 0.8))
     write_ply(inputs / "terrain_b.ply", v2, f2, np.full((len(v2), 3), 0.8))
-    written = write_mesh_registration((v1, f1), (v2, f2), out, options or Options(), callback)
-    written.notes.insert(0, f"inputs in {inputs} ({len(v1)} and {len(v2)} vertices)")
+    written, mr = _write_mesh_registration((v1, f1), (v2, f2), out, options or Options(), callback, html)
+    transform = similarity_transform(mr)
+    scale = float(np.cbrt(np.linalg.det(transform[:3, :3])))
+    angle = angle_between(transform[:3, :3] / scale, DEMO_ROTATION)
+    # true partner of each first-mesh vertex: the second mesh at the same patch parameter (linear in its triangles)
+    truth = LinearNDInterpolator(p2, v2)(p1[mr.first.vertex_map])
+    predicted = matched_points(mr)[0][: len(mr.first.vertex_map)]
+    error = np.linalg.norm(predicted - truth, axis=1) / np.sqrt(mr.grids[1].area())
+    written.notes[:0] = [
+        f"inputs in {inputs}: {len(v1)} and {len(v2)} vertices",
+        f"check: rotation {angle:.2f} deg from the one applied, scale {scale:.4f} (applied {DEMO_SCALE}), "
+        f"corresponding points {np.nanmedian(error):.2%} of sqrt(area) from the true ones (median)",
+    ]
     return written
+
+
+def view_outputs(out) -> Path:
+    """``meshreg view OUT``: the interactive page ``OUT/view.html`` of a mesh registration written to ``OUT``."""
+    import trimesh
+
+    from .view import VIEW_FILE, write_view
+
+    out = Path(out)
+    names = [out / "first.ply", out / "second.ply", out / RESULT_FILE]
+    missing = [str(p) for p in names if not p.is_file()]
+    if missing:
+        raise InputError(f"{out} holds no mesh registration (missing {', '.join(missing)}): run meshreg register first")
+    meshes = [trimesh.load(p, process=False, maintain_order=True) for p in names[:2]]
+    with np.load(names[2], allow_pickle=False) as data:
+        if "matched_first" not in data:
+            raise InputError(f"{names[2]} has no per-vertex correspondence: rerun meshreg register")
+        matches = (data["matched_first"], data["matched_second"])
+        transform, energy = data["transform"], float(data["energy"])
+    first, second = ((m.vertices, m.faces, m.visual.vertex_colors[:, :3] / 255.0) for m in meshes)
+    return write_view(
+        out / VIEW_FILE,
+        first,
+        second,
+        matches,
+        np.linalg.inv(transform),
+        title=f"E = {energy:.3g}: hover a point to see its match",
+    )

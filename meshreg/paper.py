@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .register import register
+from .pipeline import register
 from .rotation import angle_between
 from .samples import paper_pairs
 

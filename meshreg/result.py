@@ -37,6 +37,9 @@ class Registration:
     timings : dict
         Seconds per stage (``search``, ``dp``, ``gd``, ``smoothing`` (mode "gd": the smoothed levels),
         ``refine``, ``total``).
+    energy_stages : tuple of str, length K
+        The stage of each entry of ``energy_history`` ("start", "dp", "gd", "kabsch", "refine", "full grid": E on
+        the full grid on arrival from the work grid).
     symmetry : int
         Index into :data:`meshreg.search.SQUARE_SYMMETRIES` of the symmetry of the square applied
         to the second surface first (0: none). h includes it: h = sigma o h', with h' the
@@ -55,6 +58,7 @@ class Registration:
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     symmetry: int = 0
+    energy_stages: tuple = ()
 
     @property
     def distance(self) -> float:
@@ -82,6 +86,7 @@ class Registration:
             params=json.dumps(self.params),
             timings=json.dumps(self.timings),
             symmetry=self.symmetry,
+            energy_stages=np.array(self.energy_stages, dtype=str),
         )
 
     @classmethod
@@ -101,6 +106,7 @@ class Registration:
                     params=json.loads(str(data["params"])),
                     timings=json.loads(str(data["timings"])),
                     symmetry=int(data["symmetry"]) if "symmetry" in data else 0,
+                    energy_stages=tuple(data["energy_stages"].tolist()) if "energy_stages" in data else (),
                 )
         except (OSError, KeyError, ValueError) as err:
             raise InputError(f"{path}: not a meshreg result file ({err})") from None

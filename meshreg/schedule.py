@@ -2,7 +2,7 @@
 
 Every stage alternates with Kabsch (Steps 2-3 of the paper's outline: descend in h, then find the best R for
 that h, until Kabsch stops helping). The descent runs on a work grid of at most :data:`COARSE_NODES` nodes per
-axis; the refinement levels are cubic B-spline bases with :data:`REFINE_KNOTS` knots per axis on the work grid,
+axis; the refinement levels are cubic B-spline bases of :data:`REFINE_KNOTS` functions per axis on the work grid,
 then every node of the full grid. Mode "gd" adds smoothed copies of both surfaces before all that
 (:mod:`meshreg.scale`). Each change of level goes through :func:`carry`: h is upsampled bicubically to the next
 grid and made a valid start there.
@@ -38,7 +38,7 @@ DP_FULL_NODES = 200
 DP_STRIP_NODES = 50
 START_BLENDS = (0.0, 1e-3, 1e-2, 0.1, 0.5)  # blends toward the identity tried for an invalid descent start
 START_MIN_DET = 1e-3  # smallest det J (per cell; its mean is 1) of a descent start
-REFINE_KNOTS = (12, 24)  # knots per axis of the cubic B-spline refinement levels, before the node level
+REFINE_KNOTS = (12, 24)  # cubic B-spline functions per axis of the refinement levels, before the node level
 COARSE_NODES = 101  # the descent and the B-spline levels run on at most this many nodes per axis
 DP_ROUND_TOL = 1e-4  # the DP stage of mode "auto" alternates directions while E drops by more than this fraction
 
@@ -60,15 +60,21 @@ class Log:
 
     def __init__(self, callback: Progress | None = None, timings: dict | None = None, stage: str | None = None):
         self.energies: list[float] = []
+        self.stages: list[str] = []  # the stage of each kept energy
         self.callback = callback
         self.timings = {} if timings is None else timings
         self._stage = stage
 
     def step(self, stage: str, iteration: int, energy: float) -> None:
         """An accepted step: keep E and report it."""
-        self.energies.append(energy)
+        self.keep(stage, energy)
         if self.callback is not None:
             self.callback(self._stage or stage, iteration, energy)
+
+    def keep(self, stage: str, energy: float) -> None:
+        """Keep E (of the full grid) without reporting it: a level's starting point."""
+        self.energies.append(energy)
+        self.stages.append(stage)
 
     def scratch(self, stage: str | None = None) -> Log:
         """A log for work off the full grid: reports and timings go on, its energies are not kept here."""
@@ -104,7 +110,7 @@ class Candidate:
             self.energy = self.objective.energy(self.rotation, self.h)
             self.pending = None
         if not self.log.energies:
-            self.log.energies.append(self.energy)
+            self.log.keep("start", self.energy)
         return self
 
 
@@ -175,7 +181,7 @@ def alternate(objective: Objective, rotation, h, solve, steps: StepParams, round
     """
     max_rounds, round_tol = rounds
     if not log.energies:
-        log.energies.append(objective.energy(rotation, h))
+        log.keep("start", objective.energy(rotation, h))
     for _ in range(max_rounds):
         state = solve(objective, rotation, h, steps, callback=partial(log.step, stage))
         h = state.h
@@ -261,7 +267,7 @@ class Descent:
         """:func:`carry` to another level; E on the full grid is kept on arrival there."""
         h = carry(h, source, target)
         if target is self.objective:
-            log.energies.append(self.objective.energy(rotation, h))
+            log.keep("full grid", self.objective.energy(rotation, h))
         return h
 
     def _refine(self, target: Objective, fields, additive: bool, rotation, h, log: Log):

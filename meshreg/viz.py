@@ -20,8 +20,16 @@ def _boundary(points: np.ndarray) -> np.ndarray:
     return np.concatenate([points[:, 0], points[-1, 1:], points[::-1, -1][1:], points[0, ::-1][1:]])
 
 
-def plot_registration(first_rotated: np.ndarray, second_registered: np.ndarray, history, path, title: str = "") -> Path:
-    """Write a PNG: boundaries of R c1 (solid blue) and c2 o h (dashed red), each centred, and E per step.
+def plot_registration(
+    first_rotated: np.ndarray,
+    second_registered: np.ndarray,
+    history,
+    path,
+    title: str = "",
+    stages=(),
+) -> Path:
+    """Write a PNG: R c1 and c2 o h overlaid (boundaries and iso-lines, each centred), where on the square they
+    differ, and E per accepted step with the stages marked.
 
     Parameters
     ----------
@@ -33,27 +41,57 @@ def plot_registration(first_rotated: np.ndarray, second_registered: np.ndarray, 
         E after each accepted step.
     path : str or Path
         Output file.
+    title : str
+    stages : sequence of str, optional
+        The stage of each entry of ``history`` (:attr:`meshreg.Registration.energy_stages`); stage changes are
+        marked on the energy curve.
     """
-    fig = Figure(figsize=(11, 4.8))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
-    for pts, style, label in ((first_rotated, "b-", "R c1"), (second_registered, "r--", "c2 o h")):
-        pts = pts - pts.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay the two
+    first = first_rotated - first_rotated.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay them
+    second = second_registered - second_registered.reshape(-1, 3).mean(axis=0)
+    fig = Figure(figsize=(15, 4.8))
+    ax = fig.add_subplot(1, 3, 1, projection="3d")
+    for pts, style, label in ((first, "b-", "R c1"), (second, "r--", "c2 o h")):
         loop = _boundary(pts)
         ax.plot(loop[:, 0], loop[:, 1], loop[:, 2], style, label=label)
         for j in np.linspace(0, pts.shape[1] - 1, 5).astype(int)[1:-1]:
             ax.plot(*pts[:, j].T, style, lw=0.6, alpha=0.6)
     ax.legend(loc="upper left")
-    ax.set_box_aspect(np.ptp(second_registered.reshape(-1, 3), axis=0) + 1e-9)
-    ax.set_title(title or "boundaries after registration")
-    ax2 = fig.add_subplot(1, 2, 2)
-    ax2.semilogy(np.maximum(np.asarray(history, dtype=float), 1e-16), "k.-")
-    ax2.set_xlabel("accepted step")
-    ax2.set_ylabel("E (squared elastic distance)")
-    ax2.grid(True, which="both", alpha=0.3)
+    ax.set_box_aspect(np.ptp(np.vstack([first.reshape(-1, 3), second.reshape(-1, 3)]), axis=0) + 1e-9)
+    ax.set_title(title or "after registration (both centred, area 1)", fontsize=10)
+    gap = fig.add_subplot(1, 3, 2)
+    image = gap.imshow(np.linalg.norm(first - second, axis=-1).T, origin="lower", extent=(0, 1, 0, 1), cmap="magma")
+    fig.colorbar(image, ax=gap, label="|R c1 - c2 o h| (area 1, centred)")
+    gap.set_xlabel("r (first surface)")
+    gap.set_ylabel("t (first surface)")
+    gap.set_title("where the registered surfaces differ", fontsize=10)
+    curve = fig.add_subplot(1, 3, 3)
+    energies = np.maximum(np.asarray(history, dtype=float), 1e-16)
+    curve.semilogy(energies, "k.-", ms=3)
+    stages = list(stages)
+    if len(stages) == len(energies):
+        for k, level in _level_starts(stages):
+            curve.axvline(k, color="tab:blue", lw=0.8, alpha=0.6)
+            curve.annotate(level, (k, energies.max()), rotation=90, va="top", ha="right", fontsize=8, color="tab:blue")
+    curve.set_xlabel("accepted step")
+    curve.set_ylabel("E (squared elastic distance)")
+    curve.set_title(f"energy: {energies[0]:.3g} -> {energies[-1]:.3g}", fontsize=10)
+    curve.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
     return path
+
+
+def _level_starts(stages) -> list[tuple[int, str]]:
+    """(index, level) where each level of a run begins in its energy history; Kabsch steps belong to the level
+    around them, and E on arrival at the full grid to the refinement that follows."""
+    out, previous = [], None
+    for k, stage in enumerate(stages):
+        level = {"full grid": "refine"}.get(stage, stage)
+        if level not in ("kabsch", "start") and level != previous:
+            out.append((k, level))
+            previous = level
+    return out
 
 
 def plot_matrix(names, distance: np.ndarray, embedding: np.ndarray, path, title: str = "") -> Path:
@@ -103,31 +141,87 @@ def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z])
 
 
-def plot_meshes(path, v1, f1, c1, v2, f2, c2, title: str = "", second_to_first: np.ndarray | None = None) -> None:
-    """PNG: the two meshes side by side, coloured by correspondence, both seen from the first's mean normal.
+LIGHT = np.array([-0.4, 0.35, 0.85]) / np.linalg.norm([-0.4, 0.35, 0.85])  # key light, in the view's frame
+ELEVATION, AZIMUTH = 35.0, -60.0  # oblique camera of the mesh pictures, degrees
 
-    ``second_to_first`` (4, 4), the similarity from the second's frame to the first's, puts the second
-    mesh in the first's pose so that the two pictures can be compared point by point.
+
+def plot_meshes(
+    path,
+    v1,
+    f1,
+    c1,
+    v2,
+    f2,
+    c2,
+    title: str = "",
+    second_to_first: np.ndarray | None = None,
+    distance: np.ndarray | None = None,
+) -> Path:
+    """PNG: the two meshes side by side, coloured by correspondence, lit and seen obliquely from the first's side.
+
+    Parameters
+    ----------
+    path : str or Path
+    v1, f1, c1, v2, f2, c2 : ndarray
+        Vertices (n, 3), faces (m, 3) and colours (n, 3) in [0, 1] of each mesh.
+    title : str
+    second_to_first : ndarray, shape (4, 4), optional
+        The similarity from the second's frame to the first's: the second mesh is drawn in the first's pose, so
+        the pictures compare point by point.
+    distance : ndarray, shape (n1,), optional
+        Per vertex of the first mesh, the distance to its corresponding point (relative to sqrt(area)); drawn as a
+        third panel with a colour bar.
     """
     if second_to_first is not None:
         v2 = v2 @ second_to_first[:3, :3].T + second_to_first[:3, 3]
     view = _view_rotation(v1, f1)
-    fig = Figure(figsize=(11, 5))
-    for k, (v, f, c, name) in enumerate(((v1, f1, c1, "first"), (v2, f2, c2, "second"))):
-        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
-        p = (v - v.mean(axis=0)) @ view.T
-        ax.plot_trisurf(p[:, 0], p[:, 1], p[:, 2], triangles=f, color="w", linewidth=0, shade=False).set_facecolor(
-            c[f].mean(1)
+    panels = [(v1, f1, c1, f"first mesh ({len(v1)} vertices)")]
+    pose = ", in the first's pose" if second_to_first is not None else ""
+    panels.append((v2, f2, c2, f"second mesh ({len(v2)} vertices){pose}"))
+    fig = Figure(figsize=(5.5 * (len(panels) + (distance is not None)), 5.2))
+    count = len(panels) + (distance is not None)
+    for k, (v, f, c, name) in enumerate(panels):
+        _draw_mesh(
+            fig.add_subplot(1, count, k + 1, projection="3d"), (v - v1.mean(axis=0)) @ view.T, f, c[f].mean(1), name
         )
-        ax.set_title(
-            f"{name} mesh ({len(v)} vertices)" + (", in the first's pose" if k and second_to_first is not None else "")
-        )
-        ax.set_box_aspect(np.ptp(p, axis=0) + 1e-9)
-        ax.view_init(elev=65, azim=-90)
-        ax.set_axis_off()
-    fig.suptitle(title or "corresponding points share a colour")
+    if distance is not None:
+        from matplotlib import cm
+        from matplotlib.colors import Normalize
+
+        finite = distance[np.isfinite(distance)]
+        norm = Normalize(0.0, float(np.percentile(finite, 98)) if len(finite) else 1.0)
+        face_value = np.nanmean(distance[f1], axis=1)
+        colors = cm.viridis(norm(np.nan_to_num(face_value, nan=0.0)))[:, :3]
+        colors[np.isnan(face_value)] = 0.6
+        ax = fig.add_subplot(1, count, count, projection="3d")
+        _draw_mesh(ax, (v1 - v1.mean(axis=0)) @ view.T, f1, colors, "distance to the corresponding point")
+        bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), ax=ax, shrink=0.6, pad=0.02)
+        bar.set_label("fraction of sqrt(area)")
+    fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
     fig.tight_layout()
+    path = Path(path)
     fig.savefig(path, dpi=110)
+    return path
+
+
+def _draw_mesh(ax, points: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, title: str) -> None:
+    """Faces in their colours, lit by LIGHT (Lambert, with an ambient floor), on an oblique camera."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    tri = points[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    shade = 0.45 + 0.55 * np.abs(normal @ LIGHT)  # both sides lit: the winding of a scan is arbitrary
+    colors = np.clip(face_colors * shade[:, None], 0, 1)
+    ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolors=colors, linewidths=0.2))
+    low, high = points.min(axis=0), points.max(axis=0)
+    ax.set_xlim(low[0], high[0])
+    ax.set_ylim(low[1], high[1])
+    ax.set_zlim(low[2], high[2])
+    ax.set_box_aspect(np.ptp(points, axis=0) + 1e-9)
+    ax.view_init(elev=ELEVATION, azim=AZIMUTH)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=10)
 
 
 def classical_mds(distance: np.ndarray, dims: int = 2) -> np.ndarray:

@@ -123,3 +123,9 @@ def test_options_record_every_field_in_the_result():
     result = meshreg.register(pair.first, pair.second, mode="dp", window=4, advanced=Advanced(dp_rounds=2))
     assert result.params["window"] == 4 and result.params["dp_rounds"] == 2 and result.params["mode"] == "dp"
     assert set(result.params) >= {f.name for f in dataclasses.fields(Advanced)}
+
+
+def test_register_stays_the_function_once_the_pipeline_module_is_loaded():
+    import meshreg.mesh.correspond  # noqa: F401  (imports meshreg.pipeline, the module behind meshreg.register)
+
+    assert callable(meshreg.register) and meshreg.register.__name__ == "register"

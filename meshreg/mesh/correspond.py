@@ -9,11 +9,13 @@ from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, Regul
 from scipy.spatial import cKDTree
 
 from ..options import Options
-from ..register import register_with
+from ..pipeline import register_with
 from ..result import Registration
 from ..schedule import Progress
+from ..spline import GridInterpolator
 from .corners import corner_positions
 from .harmonic import HarmonicMap
+from .locate import locate, surface_points
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
 
@@ -122,3 +124,25 @@ def vertex_pairs(mr: MeshRegistration) -> np.ndarray:
     h = RegularGridInterpolator((mr.result.r, mr.result.t), mr.result.h)(np.clip(mr.uv1[:k1], 0, 1))
     _, nearest = cKDTree(mr.uv2[:k2]).query(h)
     return np.c_[mr.first.vertex_map, mr.second.vertex_map[nearest]]
+
+
+def h_at(result: Registration, uv: np.ndarray) -> np.ndarray:
+    """h at points uv (k, 2) of the first surface's square (bicubic between the grid nodes), shape (k, 2)."""
+    return np.clip(GridInterpolator(result.h, result.r, result.t)(uv[:, 0], uv[:, 1])[0], 0.0, 1.0)
+
+
+def matched_points(mr: MeshRegistration) -> tuple[np.ndarray, np.ndarray]:
+    """The correspondence as points on the meshes' own triangles (barycentric, not snapped to vertices).
+
+    Returns
+    -------
+    on_second : ndarray, shape (n1, 3)
+        For each vertex of the first disk, the point of the second disk matched with it (second's coordinates).
+    on_first : ndarray, shape (n2, 3)
+        For each vertex of the second disk, the point of the first disk matched with it.
+    """
+    d1, d2 = mr.first, mr.second
+    face, bary = locate(mr.uv2, d2.faces, h_at(mr.result, mr.uv1))
+    on_second = surface_points(d2.vertices, d2.faces, face, bary)
+    face, bary = locate(mr.uv1, d1.faces, mr.matched_uv2)
+    return on_second, surface_points(d1.vertices, d1.faces, face, bary)

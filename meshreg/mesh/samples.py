@@ -106,13 +106,17 @@ def random_disk_mesh(surface, n_points: int, seed: int, border: int = 24, rotati
     return verts[perm], inv[faces], pts[perm]
 
 
+DEMO_ROTATION = Rotation.from_euler("xyz", [30, -20, 75], degrees=True).as_matrix()
+DEMO_SCALE = 2.5
+
+
 def demo_pair():
-    """Two meshes of one terrain patch: 2500 and 4000 random vertices, the second rotated and scaled."""
+    """Two meshes of one terrain patch from 2500 and 4000 random interior points (plus their borders), the second
+    rotated by :data:`DEMO_ROTATION`, scaled by :data:`DEMO_SCALE` and shifted. Each is (vertices, faces, params):
+    a vertex's parameter on the patch, which identifies corresponding points."""
     surface = terrain_function()
     first = random_disk_mesh(surface, 2500, seed=1)
-    second = random_disk_mesh(
-        surface, 4000, seed=2, rotation=Rotation.from_euler("xyz", [30, -20, 75], degrees=True).as_matrix(), scale=2.5
-    )
+    second = random_disk_mesh(surface, 4000, seed=2, rotation=DEMO_ROTATION, scale=DEMO_SCALE)
     return first, second
 
 

@@ -1,4 +1,5 @@
-"""The registration pipeline: find the rotation R of the first surface and the reparametrization h of the second.
+"""The registration pipeline behind ``meshreg.register``: the rotation R of the first surface and the
+reparametrization h of the second.
 
 Modes (a table, :data:`SOLVE`, of functions each returning a :class:`~meshreg.schedule.Candidate`):
 
@@ -148,6 +149,7 @@ def register_with(first, second, options: Options, callback: Progress | None = N
         energy=best.energy,
         energy_dp=best.energy_dp,
         energy_history=np.array(best.log.energies),
+        energy_stages=tuple(best.log.stages),
         r=best.objective.r,
         t=best.objective.t,
         mode=options.mode,
