@@ -83,6 +83,7 @@ def register_files(
     """
     from .grid import read_grid
     from .mesh.topology import MESH_SUFFIXES, load_mesh
+    from .surfaces import Mesh
 
     options = options or Options()
     paths = [Path(first), Path(second)]
@@ -92,7 +93,7 @@ def register_files(
             raise InputError("give two meshes or two grid files, not one of each")
         if symmetric:
             raise InputError("--symmetric registers grid files both ways; for meshes, run register twice")
-        meshes = [load_mesh(p) for p in paths]
+        meshes = [Mesh(*load_mesh(p), name=str(p)) for p in paths]
         return write_mesh_registration(meshes[0], meshes[1], output_dir(out, paths), options, callback, html)
     grids = [read_grid(p, grid_shape) for p in paths]
     return write_grid_registration(grids[0], grids[1], output_dir(out, paths), options, symmetric, callback)
@@ -126,39 +127,28 @@ def write_grid_registration(
 def write_mesh_registration(
     first, second, out: Path, options: Options, callback: Progress | None = None, html: bool = False
 ) -> Written:
-    """Register two (vertices, faces) meshes and write coloured meshes, ``result.npz``, both figures and, with
-    ``html``, the interactive page ``view.html``."""
+    """Register two meshes (:class:`meshreg.surfaces.Mesh`) and write coloured meshes, ``result.npz``, both
+    figures and, with ``html``, the interactive page ``view.html``."""
     return _write_mesh_registration(first, second, out, options, callback, html)[0]
 
 
 def _write_mesh_registration(first, second, out: Path, options: Options, callback=None, html: bool = False):
     """:func:`write_mesh_registration`, also returning the MeshRegistration."""
-    from .mesh.correspond import matched_points, register_meshes, similarity_transform
+    from .mesh.correspond import register_meshes
     from .mesh.export import colored_outputs, write_ply
     from .viz import plot_meshes, plot_registration
 
     mr = register_meshes(first, second, options, callback)
-    (v1, f1), (v2, f2) = first, second
+    result = mr.result
+    (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
     c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
     write_ply(out / "first.ply", v1, f1, c1)
     write_ply(out / "second.ply", v2, f2, c2)
     write_ply(out / "registered.ply", *registered)
-    uv1 = mr.first.to_input(mr.uv1, len(v1), [np.nan, np.nan])
-    uv2 = mr.second.to_input(mr.uv2, len(v2), [np.nan, np.nan])
-    on_second, on_first = matched_points(mr)
-    on_second = mr.first.to_input(on_second, len(v1), [np.nan] * 3)
-    on_first = mr.second.to_input(on_first, len(v2), [np.nan] * 3)
-    transform = similarity_transform(mr)
-    mr.result.save(
-        out / RESULT_FILE,
-        uv_first=uv1,
-        uv_second=uv2,
-        matched_first=on_second,
-        matched_second=on_first,
-        transform=transform,
-    )
-    energy = mr.result.energy
-    gap = np.linalg.norm(v1 @ transform[:3, :3].T + transform[:3, 3] - on_second, axis=1)
+    on_second, on_first = result.correspondence(), result.correspondence_on_first()
+    uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
+    result.save(out / RESULT_FILE, **uv, matched_first=on_second, matched_second=on_first)
+    title = f"E = {result.energy:.3g}"
     plot_meshes(
         out / "meshes.png",
         v1,
@@ -167,18 +157,18 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
         v2,
         f2,
         c2,
-        title=f"E = {energy:.3g}: corresponding points share a colour and a checkerboard square",
-        second_to_first=np.linalg.inv(transform),
-        distance=gap / np.sqrt(mr.grids[1].area()),
+        title=f"{title}: corresponding points share a colour and a checkerboard square",
+        second_to_first=np.linalg.inv(result.transform),
+        distance=result.distances() / np.sqrt(result.second.area()),
     )
     g1, g2 = mr.grids
     plot_registration(
-        mr.result.apply(g1.scaled().points),
-        g2.scaled().at(mr.result.h),
-        mr.result.energy_history,
+        result.apply(g1.scaled().points),
+        g2.scaled().at(result.h),
+        result.energy_history,
         out / FIGURE_FILE,
-        title=f"E = {energy:.3g}",
-        stages=mr.result.energy_stages,
+        title=title,
+        stages=result.energy_stages,
     )
     notes = []
     for name, info in mr.info.items():
@@ -189,17 +179,16 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
     if html:
         from .view import VIEW_FILE, write_view
 
-        files.append(
-            write_view(
-                out / VIEW_FILE,
-                (v1, f1, c1),
-                (v2, f2, c2),
-                (on_second, on_first),
-                np.linalg.inv(transform),
-                title=f"E = {energy:.3g}: hover a point to see its match",
-            )
+        view = write_view(
+            out / VIEW_FILE,
+            (v1, f1, c1),
+            (v2, f2, c2),
+            (on_second, on_first),
+            np.linalg.inv(result.transform),
+            title=f"{title}: hover a point to see its match",
         )
-    return Written(mr.result, files, notes), mr
+        files.append(view)
+    return Written(result, files, notes), mr
 
 
 def run_demo(out, options: Options | None = None, callback: Progress | None = None, html: bool = True) -> Written:
@@ -208,29 +197,24 @@ def run_demo(out, options: Options | None = None, callback: Progress | None = No
     compare the answer with the motion applied and with the true correspondence."""
     from scipy.interpolate import LinearNDInterpolator
 
-    from .mesh.correspond import matched_points, similarity_transform
-    from .mesh.export import write_ply
-    from .mesh.samples import DEMO_ROTATION, DEMO_SCALE, demo_pair
+    from .mesh.samples import DEMO_ROTATION, DEMO_SCALE, demo_pair, write_demo_meshes
     from .rotation import angle_between
+    from .surfaces import Mesh
 
     out = output_dir(out, [])
-    (v1, f1, p1), (v2, f2, p2) = demo_pair()
-    inputs = out / "inputs"
-    inputs.mkdir(exist_ok=True)
-    write_ply(inputs / "terrain_a.ply", v1, f1, np.full((len(v1), 3), 0.8))
-    write_ply(inputs / "terrain_b.ply", v2, f2, np.full((len(v2), 3), 0.8))
-    written, mr = _write_mesh_registration((v1, f1), (v2, f2), out, options or Options(), callback, html)
-    transform = similarity_transform(mr)
-    scale = float(np.cbrt(np.linalg.det(transform[:3, :3])))
-    angle = angle_between(transform[:3, :3] / scale, DEMO_ROTATION)
+    pair = (v1, f1, p1), (v2, f2, p2) = demo_pair()
+    inputs = write_demo_meshes(out / "inputs", pair)[0].parent
+    meshes = Mesh(v1, f1, "terrain_a"), Mesh(v2, f2, "terrain_b")
+    written = write_mesh_registration(*meshes, out, options or Options(), callback, html)
+    result = written.result
+    angle = angle_between(result.transform[:3, :3] / result.scale, DEMO_ROTATION)
     # true partner of each first-mesh vertex: the second mesh at the same patch parameter (linear in its triangles)
-    truth = LinearNDInterpolator(p2, v2)(p1[mr.first.vertex_map])
-    predicted = matched_points(mr)[0][: len(mr.first.vertex_map)]
-    error = np.linalg.norm(predicted - truth, axis=1) / np.sqrt(mr.grids[1].area())
+    error = np.linalg.norm(result.correspondence() - LinearNDInterpolator(p2, v2)(p1), axis=1)
     written.notes[:0] = [
         f"inputs in {inputs}: {len(v1)} and {len(v2)} vertices",
-        f"check: rotation {angle:.2f} deg from the one applied, scale {scale:.4f} (applied {DEMO_SCALE}), "
-        f"corresponding points {np.nanmedian(error):.2%} of sqrt(area) from the true ones (median)",
+        f"check: rotation {angle:.2f} deg from the one applied, scale {result.scale:.4f} (applied {DEMO_SCALE}), "
+        f"corresponding points {np.nanmedian(error) / np.sqrt(result.second.area()):.2%} of sqrt(area) from the "
+        "true ones (median)",
     ]
     return written
 

@@ -30,16 +30,21 @@ Bernal & Lawrence, Section 4 (Simplified Outline of Optimization Procedure, Step
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from functools import partial
 
 import numpy as np
 
-from .grid import GridSurface, as_surface
+from .correspondence import Side
+from .errors import InputError
+from .grid import GridSurface
 from .objective import Objective
 from .options import Advanced, Options
 from .result import Registration
+from .rotation import similarity
 from .schedule import Candidate, Descent, Log, Progress, dp_stage, gd_paths, valid_start, work_objective
 from .search import Start, apply_symmetry, best_start, symmetry_map
+from .surfaces import Mesh, as_input
 
 DEFAULTS = Options()
 # a start ranked lower must beat a better-ranked one by this fraction of E to win; the identity symmetry goes
@@ -61,17 +66,27 @@ def register(
     max_starts: int = DEFAULTS.max_starts,
     start_basis: int = DEFAULTS.start_basis,
     smoothing: tuple[float, ...] = DEFAULTS.smoothing,
+    resolution: int = DEFAULTS.resolution,
+    weights: str = DEFAULTS.weights,
+    cleanup: bool = DEFAULTS.cleanup,
+    corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
+    corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
+    corner_search: int = DEFAULTS.corner_search,
     advanced: Advanced | None = None,
     callback: Progress | None = None,
 ) -> Registration:
-    """Register two grid surfaces: rotate the first, reparametrize the second.
+    """Register two surfaces: rotate the first, reparametrize the second.
 
     Parameters
     ----------
-    first, second : GridSurface, ndarray (M, N, 3) or path
-        The surfaces; grid sizes may differ. Both are scaled to area 1.
+    first, second : grid or mesh
+        Two grids (GridSurface, ndarray (M, N, 3), grid file) or two disk-topology meshes (mesh file,
+        ``trimesh.Trimesh``, Open3D ``TriangleMesh``, ``(vertices, faces)``); grid sizes and vertex counts may
+        differ. Both are scaled to area 1.
     mode, window, basis, solver, refine, search, symmetries, max_starts, start_basis, smoothing
-        See :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
+        How to register: see :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
+    resolution, weights, cleanup, corners1, corners2, corner_search
+        How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
@@ -81,6 +96,8 @@ def register(
     Returns
     -------
     Registration
+        R, h, E and the correspondence (``correspondence``, ``vertex_pairs``, ``transform``, ``distances``,
+        ``fitness``, ``inlier_rmse``).
 
     Examples
     --------
@@ -101,16 +118,34 @@ def register(
         max_starts=max_starts,
         start_basis=start_basis,
         smoothing=smoothing,
+        resolution=resolution,
+        weights=weights,
+        cleanup=cleanup,
+        corners1=corners1,
+        corners2=corners2,
+        corner_search=corner_search,
         advanced=advanced or Advanced(),
     )
     return register_with(first, second, options, callback)
 
 
 def register_with(first, second, options: Options, callback: Progress | None = None) -> Registration:
-    """:func:`register` with every setting in one :class:`~meshreg.options.Options` (the command line, the mesh
-    path and the distance matrix call this)."""
+    """:func:`register` with every setting in one :class:`~meshreg.options.Options` (the command line, the adapters
+    and the distance matrix call this). ``first`` and ``second`` are two grids or two meshes, in any form
+    :func:`meshreg.surfaces.as_input` takes."""
+    a, b = as_input(first, "first"), as_input(second, "second")
+    if isinstance(a, Mesh) != isinstance(b, Mesh):
+        raise InputError("give two meshes or two grids, not one of each")
+    if isinstance(a, Mesh):
+        from .mesh.correspond import register_meshes
+
+        return register_meshes(a, b, options, callback).result
+    return replace(register_grids(a, b, options, callback), first=Side.from_grid(a), second=Side.from_grid(b))
+
+
+def register_grids(first: GridSurface, second: GridSurface, options: Options, callback: Progress | None = None):
+    """The registration of two grid surfaces (the core of :func:`register_with`; no :class:`Side` attached)."""
     start = time.perf_counter()
-    first, second = as_surface(first), as_surface(second)
     timings = {}
     starts = [Start(0, None, float("nan"))]
     if options.mode == "auto" and options.search:
@@ -143,9 +178,10 @@ def register_with(first, second, options: Options, callback: Progress | None = N
         "grid_second": list(best.objective.second.shape),
     }
     symmetry = starts[chosen].symmetry
+    h = symmetry_map(symmetry, best.h)
     return Registration(
         rotation=best.rotation,
-        h=symmetry_map(symmetry, best.h),
+        h=h,
         energy=best.energy,
         energy_dp=best.energy_dp,
         energy_history=np.array(best.log.energies),
@@ -156,6 +192,7 @@ def register_with(first, second, options: Options, callback: Progress | None = N
         params=params,
         timings=timings,
         symmetry=symmetry,
+        transform=similarity(best.rotation, first.points, second.at(h)),
     )
 
 
@@ -236,5 +273,5 @@ def register_symmetric(first, second, mode: str = DEFAULTS.mode, **settings) -> 
     -------
     forward, backward : Registration
     """
-    first, second = as_surface(first), as_surface(second)
+    first, second = as_input(first, "first"), as_input(second, "second")
     return register(first, second, mode, **settings), register(second, first, mode, **settings)

@@ -1,13 +1,19 @@
-"""The result of a registration and its file format (``result.npz``)."""
+"""The result of a registration, what a user does with it (correspondence, transform, distances), and its file
+format (``result.npz``)."""
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
+from .correspondence import Side, h_at, inverse_uv
 from .errors import InputError
+
+INLIER_DISTANCE = 0.01  # default inlier threshold of fitness and inlier_rmse, as a fraction of sqrt(area of second)
+_SIDE_KEYS = ("vertices", "faces", "uv", "input_index", "source_ids")
 
 
 @dataclass(frozen=True)
@@ -45,6 +51,25 @@ class Registration:
         to the second surface first (0: none). h includes it: h = sigma o h', with h' the
         orientation-preserving reparametrization found for the symmetric copy, so h itself
         reverses orientation when sigma does.
+    transform : ndarray, shape (4, 4)
+        The similarity x -> s R x + b taking the first surface into the second's frame (R the rotation; s and b
+        fitted by least squares to the corresponding points).
+    first, second : Side or None
+        Each surface as a triangle mesh laid out on the square, and how its vertices relate to the surface as
+        given (:class:`meshreg.correspondence.Side`); they make :meth:`correspondence` and the methods after it.
+    info : dict
+        What the mesh preparation did, per surface ("first", "second"): cleanup report, flipped triangles, ...
+
+    Examples
+    --------
+    >>> import meshreg
+    >>> from meshreg.samples import paper_pairs
+    >>> pair = paper_pairs(21, 21)[6]
+    >>> result = meshreg.register(pair.first, pair.second, mode="dp+gd")
+    >>> result.correspondence([0, 220]).shape        # points of the second matched with first vertices 0 and 220
+    (2, 3)
+    >>> bool(result.fitness() > 0.99), result.vertex_pairs().shape
+    (True, (441, 2))
     """
 
     rotation: np.ndarray
@@ -59,6 +84,10 @@ class Registration:
     timings: dict = field(default_factory=dict)
     symmetry: int = 0
     energy_stages: tuple = ()
+    transform: np.ndarray = field(default_factory=lambda: np.eye(4))
+    first: Side | None = None
+    second: Side | None = None
+    info: dict = field(default_factory=dict)
 
     @property
     def distance(self) -> float:
@@ -68,6 +97,97 @@ class Registration:
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Rotate points (..., 3) of the first surface by R."""
         return np.asarray(points) @ self.rotation.T
+
+    @property
+    def scale(self) -> float:
+        """s of :attr:`transform`: the size of the second surface relative to the first."""
+        return float(np.cbrt(np.linalg.det(self.transform[:3, :3])))
+
+    def aligned(self, points: np.ndarray) -> np.ndarray:
+        """Points (..., 3) of the first surface moved into the second's frame by :attr:`transform`."""
+        return np.asarray(points, dtype=float) @ self.transform[:3, :3].T + self.transform[:3, 3]
+
+    def correspondence(self, where=None, barycentric: bool = False):
+        """Points of the second surface matched with points of the first (on its triangles, not snapped).
+
+        Parameters
+        ----------
+        where : None, int array (k,) or float array (k, 3)
+            Which points of the first surface: every vertex as given (default), vertex ids, or points near the
+            first surface in its own coordinates (each taken at the surface's closest point).
+        barycentric : bool
+            Also return, for each match, the vertex ids of the second surface's triangle that holds it (as given;
+            -1 for a vertex cleanup added) and the barycentric weights.
+
+        Returns
+        -------
+        points : ndarray, shape (k, 3)
+            In the second surface's coordinates; NaN where a point has no match (dropped by cleanup).
+        ids, weights : ndarray, shape (k, 3)
+            With ``barycentric``.
+        """
+        points, ids, weights = self._matches if where is None else self.second.at_uv(self._h(self._first_uv(where)))
+        return (points, ids, weights) if barycentric else points
+
+    def correspondence_on_first(self) -> np.ndarray:
+        """For each vertex of the second surface as given, its matched point on the first (first's coordinates),
+        shape (n2, 3); NaN where cleanup dropped the vertex."""
+        uv = inverse_uv(self.h, self.r, self.t, self.second.input_uv())
+        return self.first.at_uv(uv)[0]
+
+    def vertex_pairs(self) -> np.ndarray:
+        """(k, 2) vertex ids (first, second): each vertex of the first with a match, and the vertex of the second
+        nearest to its matched point (like Open3D's ``correspondence_set``)."""
+        from scipy.spatial import cKDTree
+
+        points = self.correspondence()
+        has = np.flatnonzero(np.all(np.isfinite(points), axis=1))
+        kept = np.flatnonzero(self.second.input_index >= 0)
+        _, nearest = cKDTree(self.second.vertices[self.second.input_index[kept]]).query(points[has])
+        return np.c_[has, kept[nearest]]
+
+    def distances(self) -> np.ndarray:
+        """Per vertex of the first surface as given, the distance (second's units) from the vertex moved by
+        :attr:`transform` to its matched point, shape (n1,); NaN where there is no match. Near 0 everywhere for
+        two meshes of one surface; large where the shapes differ."""
+        first = self.first.vertices[np.maximum(self.first.input_index, 0)]
+        return np.linalg.norm(self.aligned(first) - self.correspondence(), axis=1)
+
+    def inlier_threshold(self, fraction: float = INLIER_DISTANCE) -> float:
+        """``fraction`` of sqrt(area of the second surface): the default distance of an inlier."""
+        return fraction * np.sqrt(self.second.area())
+
+    def fitness(self, threshold: float | None = None) -> float:
+        """Fraction of the first surface's vertices whose :meth:`distances` is at most ``threshold`` (default
+        :meth:`inlier_threshold`), as Open3D's ``RegistrationResult.fitness``."""
+        d = self.distances()
+        return float(np.mean(d <= (self.inlier_threshold() if threshold is None else threshold)))
+
+    def inlier_rmse(self, threshold: float | None = None) -> float:
+        """Root mean square of :meth:`distances` over the inliers (NaN when there are none), as Open3D's
+        ``RegistrationResult.inlier_rmse``."""
+        d = self.distances()
+        inliers = d[d <= (self.inlier_threshold() if threshold is None else threshold)]
+        return float(np.sqrt(np.mean(inliers**2))) if len(inliers) else float("nan")
+
+    def _first_uv(self, where) -> np.ndarray:
+        where = np.asarray(where)
+        if where.ndim == 2 and where.shape[1] == 3 and np.issubdtype(where.dtype, np.floating):
+            return self.first.uv_of_points(where)[0]
+        if where.ndim != 1 or not np.issubdtype(where.dtype, np.integer):
+            raise InputError("correspondence takes vertex ids (k,) or points (k, 3) of the first surface")
+        if len(where) and (where.min() < 0 or where.max() >= self.first.n_input):
+            raise InputError(f"vertex ids must be in 0..{self.first.n_input - 1}")
+        return self.first.input_uv(where)
+
+    def _h(self, uv: np.ndarray) -> np.ndarray:
+        if self.first is None or self.second is None:
+            raise InputError("this result has no surfaces attached (made by an older meshreg): register again")
+        return h_at(self.h, self.r, self.t, uv)
+
+    @cached_property
+    def _matches(self):
+        return self.second.at_uv(self._h(self.first.input_uv()))
 
     def save(self, path, **extra) -> None:
         """Write the result to ``path`` (``.npz``; keys listed in docs/outputs.md), plus ``extra`` arrays."""
@@ -87,7 +207,17 @@ class Registration:
             timings=json.dumps(self.timings),
             symmetry=self.symmetry,
             energy_stages=np.array(self.energy_stages, dtype=str),
+            transform=self.transform,
+            info=json.dumps(self.info),
+            **self._side_arrays(),
         )
+
+    def _side_arrays(self) -> dict:
+        out = {}
+        for name, side in (("first", self.first), ("second", self.second)):
+            if side is not None:
+                out.update({f"{name}_{key}": getattr(side, key) for key in _SIDE_KEYS})
+        return out
 
     @classmethod
     def load(cls, path) -> Registration:
@@ -107,6 +237,15 @@ class Registration:
                     timings=json.loads(str(data["timings"])),
                     symmetry=int(data["symmetry"]) if "symmetry" in data else 0,
                     energy_stages=tuple(data["energy_stages"].tolist()) if "energy_stages" in data else (),
+                    transform=data["transform"] if "transform" in data else np.eye(4),
+                    first=_side(data, "first"),
+                    second=_side(data, "second"),
+                    info=json.loads(str(data["info"])) if "info" in data else {},
                 )
         except (OSError, KeyError, ValueError) as err:
             raise InputError(f"{path}: not a meshreg result file ({err})") from None
+
+
+def _side(data, name: str) -> Side | None:
+    keys = [f"{name}_{key}" for key in _SIDE_KEYS]
+    return Side(*(data[k] for k in keys)) if all(k in data for k in keys) else None

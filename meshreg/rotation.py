@@ -42,3 +42,15 @@ def angle_between(r1: np.ndarray, r2: np.ndarray) -> float:
     """Angle in degrees of the rotation r1 r2^T (0 when r1 == r2)."""
     c = (np.trace(r1 @ r2.T) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def similarity(rotation: np.ndarray, source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The similarity x -> s R x + b (4 x 4) with R = ``rotation`` fixed and s, b the least-squares fit of the
+    points ``source`` (..., 3) onto their counterparts ``target`` (..., 3)."""
+    p, q = np.asarray(source, dtype=float).reshape(-1, 3), np.asarray(target, dtype=float).reshape(-1, 3)
+    rp = (p - p.mean(axis=0)) @ rotation.T
+    scale = float(np.sum(rp * (q - q.mean(axis=0))) / np.sum(rp * rp))
+    out = np.eye(4)
+    out[:3, :3] = scale * rotation
+    out[:3, 3] = q.mean(axis=0) - scale * rotation @ p.mean(axis=0)
+    return out

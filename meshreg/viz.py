@@ -125,6 +125,8 @@ def plot_matrix(names, distance: np.ndarray, embedding: np.ndarray, path, title:
     for k, label in enumerate(labels):
         emb.annotate(label, embedding[k], fontsize=7, xytext=(3, 3), textcoords="offset points")
     emb.set_title("classical MDS of the distances")
+    emb.set_xlabel("MDS axis 1 (elastic distance units)")
+    emb.set_ylabel("MDS axis 2 (elastic distance units)")
     emb.set_aspect("equal", adjustable="datalim")
     fig.suptitle(title or f"{len(names)} surfaces, {len(names) * (len(names) - 1) // 2} pairs")
     path = Path(path)

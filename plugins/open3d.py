@@ -15,7 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshreg.mesh.correspond import similarity_transform, vertex_pairs
 from meshreg.mesh.harmonic import HarmonicMap, choose_corners
 from meshreg.mesh.topology import prepare_disk
 from meshreg.options import Options
@@ -36,6 +35,11 @@ class ElasticRegistrationResult:
         The similarity (rotation, uniform scale, translation) taking the source into the target's frame.
     correspondence_set : ndarray (k, 2) int
         Source vertex id -> target vertex id of matched points (every source vertex kept by cleanup).
+    fitness : float
+        Fraction of source vertices whose matched point lies within the inlier distance (1% of sqrt(target
+        area)) of the source vertex moved by ``transformation``, as in Open3D.
+    inlier_rmse : float
+        Root mean square of those distances over the inliers, as in Open3D.
     energy : float
         E, the squared elastic shape distance (both surfaces at area 1).
     distance : float
@@ -50,6 +54,8 @@ class ElasticRegistrationResult:
 
     transformation: np.ndarray
     correspondence_set: np.ndarray
+    fitness: float
+    inlier_rmse: float
     energy: float
     distance: float
     source_colored: object
@@ -84,8 +90,10 @@ def register(source, target, options: Options | None = None) -> ElasticRegistrat
     )
     registered.vertex_colors = o3d.utility.Vector3dVector(rc)
     return ElasticRegistrationResult(
-        transformation=similarity_transform(mr),
-        correspondence_set=vertex_pairs(mr),
+        transformation=mr.result.transform,
+        correspondence_set=mr.result.vertex_pairs(),
+        fitness=mr.result.fitness(),
+        inlier_rmse=mr.result.inlier_rmse(),
         energy=mr.result.energy,
         distance=mr.result.distance,
         source_colored=_colored(source, c1),

@@ -1,34 +1,21 @@
-"""Register two disk meshes: clean, map to the square, resample, register, and carry the correspondence back."""
+"""Register two disk meshes: clean, map to the square, resample, register, and attach the meshes to the result."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, RegularGridInterpolator
-from scipy.spatial import cKDTree
 
+from ..correspondence import Side, inverse_uv
+from ..errors import InputError
 from ..options import Options
-from ..pipeline import register_with
+from ..pipeline import register_grids
 from ..result import Registration
 from ..schedule import Progress
-from ..spline import GridInterpolator
 from .corners import corner_positions
 from .harmonic import HarmonicMap
-from .locate import locate, surface_points
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
-
-
-def corresponding_uv(result: Registration, uv2: np.ndarray) -> np.ndarray:
-    """For points uv2 (n, 2) of the second surface's square, the (r, t) of the first that h maps onto them."""
-    nodes = np.stack(np.meshgrid(result.r, result.t, indexing="ij"), axis=-1).reshape(-1, 2)
-    images = result.h.reshape(-1, 2)
-    inverse = LinearNDInterpolator(images, nodes)(uv2)
-    outside = np.isnan(inverse[:, 0])
-    if outside.any():
-        inverse[outside] = NearestNDInterpolator(images, nodes)(uv2[outside])
-    return np.clip(inverse, 0, 1)
 
 
 @dataclass
@@ -69,7 +56,9 @@ def register_meshes(
 
     Parameters
     ----------
-    first, second : tuple (vertices, faces)
+    first, second : mesh
+        Two disk-topology meshes: files, ``trimesh.Trimesh``, Open3D ``TriangleMesh`` or (vertices (n, 3), faces
+        (m, 3)); see :func:`meshreg.surfaces.as_input`.
     options : Options, optional
         Mesh preparation (``resolution``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
         ``corner_search``) and registration settings (default mode "auto", which tries the 8 symmetries of
@@ -77,10 +66,15 @@ def register_meshes(
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
     """
+    from ..surfaces import Mesh, as_input
+
     options = options or Options()
+    meshes = [as_input(first, "first"), as_input(second, "second")]
+    if not all(isinstance(m, Mesh) for m in meshes):
+        raise InputError("register_meshes takes two meshes")
     disks, maps, infos = [], [], {}
-    for name, (v, f) in (("first", first), ("second", second)):
-        disk = prepare_disk(v, f, cleanup=options.cleanup)
+    for name, mesh in zip(("first", "second"), meshes, strict=True):
+        disk = prepare_disk(mesh.vertices, mesh.faces, cleanup=options.cleanup)
         disks.append(disk)
         maps.append(HarmonicMap(disk, options.weights))
         infos[name] = {"cleanup": disk.report}
@@ -94,55 +88,27 @@ def register_meshes(
         infos[name].update(info)
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
-    result = register_with(grids[0], grids[1], options, callback)
+    result = register_grids(grids[0], grids[1], options, callback)
+    sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]
+    result = replace(result, first=sides[0], second=sides[1], info=_json_ready(infos))
     return MeshRegistration(
-        disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, corresponding_uv(result, uvs[1]), infos
+        disks[0],
+        disks[1],
+        uvs[0],
+        uvs[1],
+        tuple(grids),
+        result,
+        inverse_uv(result.h, result.r, result.t, uvs[1]),
+        infos,
     )
 
 
-def similarity_transform(mr: MeshRegistration) -> np.ndarray:
-    """The similarity x -> s R x + b (4 x 4) taking the first mesh into the second's frame.
-
-    R is the registration's rotation; the scale s and shift b are the least-squares fit of the first's
-    grid points onto the second surface at h (their corresponding points), with R fixed.
-    """
-    g1, g2 = mr.grids
-    p = g1.points.reshape(-1, 3)
-    q = g2.at(mr.result.h).reshape(-1, 3)
-    rp = (p - p.mean(axis=0)) @ mr.result.rotation.T
-    scale = float(np.sum(rp * (q - q.mean(axis=0))) / np.sum(rp * rp))
-    out = np.eye(4)
-    out[:3, :3] = scale * mr.result.rotation
-    out[:3, 3] = q.mean(axis=0) - scale * mr.result.rotation @ p.mean(axis=0)
-    return out
-
-
-def vertex_pairs(mr: MeshRegistration) -> np.ndarray:
-    """Pairs (k, 2) of input vertex ids (first, second): each kept vertex of the first mesh and the vertex
-    of the second whose uv is nearest to h(uv) (the point the registration matches it with)."""
-    k1, k2 = len(mr.first.vertex_map), len(mr.second.vertex_map)
-    h = RegularGridInterpolator((mr.result.r, mr.result.t), mr.result.h)(np.clip(mr.uv1[:k1], 0, 1))
-    _, nearest = cKDTree(mr.uv2[:k2]).query(h)
-    return np.c_[mr.first.vertex_map, mr.second.vertex_map[nearest]]
-
-
-def h_at(result: Registration, uv: np.ndarray) -> np.ndarray:
-    """h at points uv (k, 2) of the first surface's square (bicubic between the grid nodes), shape (k, 2)."""
-    return np.clip(GridInterpolator(result.h, result.r, result.t)(uv[:, 0], uv[:, 1])[0], 0.0, 1.0)
-
-
-def matched_points(mr: MeshRegistration) -> tuple[np.ndarray, np.ndarray]:
-    """The correspondence as points on the meshes' own triangles (barycentric, not snapped to vertices).
-
-    Returns
-    -------
-    on_second : ndarray, shape (n1, 3)
-        For each vertex of the first disk, the point of the second disk matched with it (second's coordinates).
-    on_first : ndarray, shape (n2, 3)
-        For each vertex of the second disk, the point of the first disk matched with it.
-    """
-    d1, d2 = mr.first, mr.second
-    face, bary = locate(mr.uv2, d2.faces, h_at(mr.result, mr.uv1))
-    on_second = surface_points(d2.vertices, d2.faces, face, bary)
-    face, bary = locate(mr.uv1, d1.faces, mr.matched_uv2)
-    return on_second, surface_points(d1.vertices, d1.faces, face, bary)
+def _json_ready(info: dict) -> dict:
+    """The preparation report with numpy values made plain (it is saved as JSON in result.npz)."""
+    if isinstance(info, dict):
+        return {str(k): _json_ready(v) for k, v in info.items()}
+    if isinstance(info, (list, tuple)):
+        return [_json_ready(v) for v in info]
+    if isinstance(info, np.ndarray):
+        return info.tolist()
+    return info.item() if isinstance(info, np.generic) else info

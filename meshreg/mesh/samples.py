@@ -120,6 +120,20 @@ def demo_pair():
     return first, second
 
 
+def write_demo_meshes(folder, pair=None) -> tuple[Path, Path]:
+    """Write the two meshes of :func:`demo_pair` (or of ``pair``, as it returns them) as ``terrain_a.ply`` and
+    ``terrain_b.ply`` (light grey) into ``folder`` (made if missing); returns their paths."""
+    import trimesh
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = folder / "terrain_a.ply", folder / "terrain_b.ply"
+    for path, (v, f, _) in zip(paths, pair or demo_pair(), strict=True):
+        grey = np.tile([204, 204, 204, 255], (len(v), 1)).astype(np.uint8)
+        trimesh.Trimesh(v, f, vertex_colors=grey, process=False).export(path)
+    return paths
+
+
 FACE_ROTATION = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
 
 

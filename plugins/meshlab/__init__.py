@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from meshreg.errors import InputError
-from meshreg.mesh.correspond import similarity_transform
 from meshreg.options import Options
 
 from .._common import register_arrays, require
@@ -91,7 +90,7 @@ def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, opti
     return {
         "energy": mr.result.energy,
         "distance": mr.result.distance,
-        "transformation": similarity_transform(mr),
+        "transformation": mr.result.transform,
         "registration": mr.result,
         "layers": layers,
         "cleanup": {k: mr.info[k]["cleanup"] for k in ("first", "second")},
