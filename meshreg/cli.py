@@ -56,7 +56,7 @@ def _registering(quiet: bool):
 
     if not quiet and not _kernels_cached():
         print("first run: compiling meshreg's numba kernels (once; about 20-40 s)", file=sys.stderr)
-    return tqdm(desc="registering", unit=" steps", disable=quiet, leave=False)
+    return tqdm(desc="registering", unit=" steps", disable=quiet, leave=False, delay=1.0)
 
 
 def _kernels_cached() -> bool:

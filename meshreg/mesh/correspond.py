@@ -74,9 +74,12 @@ def register_meshes(
         raise InputError("register_meshes takes two meshes")
     disks, maps, infos = [], [], {}
     for name, mesh in zip(("first", "second"), meshes, strict=True):
-        disk = prepare_disk(mesh.vertices, mesh.faces, cleanup=options.cleanup)
+        try:
+            disk = prepare_disk(mesh.vertices, mesh.faces, cleanup=options.cleanup)
+            maps.append(HarmonicMap(disk, options.weights))
+        except InputError as err:
+            raise InputError(f"{mesh.name}: {err}") from None
         disks.append(disk)
-        maps.append(HarmonicMap(disk, options.weights))
         infos[name] = {"cleanup": disk.report}
     positions, tried = corner_positions(disks, maps, options)
     if tried is not None:
