@@ -57,6 +57,7 @@ def register(
     refine: str = DEFAULTS.refine,
     search: bool = DEFAULTS.search,
     symmetries: bool = DEFAULTS.symmetries,
+    keep_orientation: bool = DEFAULTS.keep_orientation,
     max_starts: int = DEFAULTS.max_starts,
     start_basis: int = DEFAULTS.start_basis,
     smoothing: tuple[float, ...] = DEFAULTS.smoothing,
@@ -69,7 +70,7 @@ def register(
     ----------
     first, second : GridSurface, ndarray (M, N, 3) or path
         The surfaces; grid sizes may differ. Both are scaled to area 1.
-    mode, window, basis, solver, refine, search, symmetries, max_starts, start_basis, smoothing
+    mode, window, basis, solver, refine, search, symmetries, keep_orientation, max_starts, start_basis, smoothing
         See :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
@@ -97,6 +98,7 @@ def register(
         refine=refine,
         search=search,
         symmetries=symmetries,
+        keep_orientation=keep_orientation,
         max_starts=max_starts,
         start_basis=start_basis,
         smoothing=smoothing,
@@ -114,7 +116,7 @@ def register_with(first, second, options: Options, callback: Progress | None = N
     starts = [Start(0, None, float("nan"))]
     if options.mode == "auto" and options.search:
         tic = time.perf_counter()
-        ranked = best_start(first, second, symmetries=options.symmetries)
+        ranked = best_start(first, second, symmetries=options.symmetries, keep_orientation=options.keep_orientation)
         starts = _close_starts(ranked, options.max_starts, options.advanced.start_margin)
         timings["search"] = time.perf_counter() - tic
     solve = SOLVE[options.mode]

@@ -18,6 +18,7 @@ REGISTRATION_FIELDS = {
     "refine",
     "search",
     "symmetries",
+    "keep_orientation",
     "max_starts",
     "start_basis",
     "smoothing",
