@@ -94,7 +94,7 @@ def registered_pair(first: GridSurface, second: GridSurface | list, options: Opt
         if isinstance(second, list):
             from .mesh.corners import best_placement
 
-            record["placement"] = best_placement(first, second)
+            record["placement"] = best_placement(first, second, options.keep_orientation)
             second = second[record["placement"]]
         result = register_with(first, second, options)
     record["seconds"] = time.perf_counter() - tic
