@@ -47,6 +47,7 @@ import numpy as np
 from .batch import Prepared, _run_key, distance_matrix, prepare_surface, registered_pair, run_checkpointed
 from .errors import InputError
 from .grid import GridSurface
+from .mesh.export import grid_faces
 from .options import Options, _integer, _number
 from .search import apply_symmetry, symmetry_map
 from .srnf import cell_weights, shape_function
@@ -137,7 +138,8 @@ class Atlas:
         name -> why a member was left out.
     medoid : str
     params : dict
-        Options, settings, iterations run and kept, convergence and ``karcher_gap`` (see the module).
+        Options, settings, iterations run and kept, convergence, ``karcher_gap`` (see the module) and ``spread``
+        (RMS distance of the shapes' vertices from the mean's, as a fraction of ``scale``).
     timings : dict
         Seconds of each stage (``prepare``, ``medoid``, ``iterations``, ``pca``, ``total``) and ``per_member``
         (total / members given).
@@ -281,15 +283,21 @@ def karcher_update(aligned: np.ndarray, r: np.ndarray, t: np.ndarray) -> GridSur
     return GridSurface(mean.points - mean.points.reshape(-1, 3).mean(axis=0), r, t)
 
 
-def karcher_gap(template: GridSurface, aligned: np.ndarray, energies: np.ndarray) -> float:
+def rms_spread(shapes: np.ndarray) -> float:
+    """Root mean square distance of the shapes' vertices (K, V, 3) from the mean shape's."""
+    return float(np.sqrt(np.mean(np.sum((shapes - shapes.mean(axis=0)) ** 2, axis=-1))))
+
+
+def karcher_gap(template: GridSurface, aligned: np.ndarray, energies: np.ndarray, floor: float = 0.0) -> float:
     """||q(T) - mean_j q(aligned_j)||^2 / mean_j E_j: the fraction of the Karcher objective that the mean of the aligned
-    shape functions (the minimizer for these alignments, not a surface in general) would remove (0 when all E = 0)."""
+    shape functions (the minimizer for these alignments, not a surface in general) would remove (0 when the mean E
+    is at most ``floor``, where it means nothing)."""
     r, t = template.r, template.t
     w = cell_weights(r, t)[..., None]
     q_mean = np.mean([shape_function(a, r, t) for a in aligned], axis=0)
     gap = float(np.sum(w * (shape_function(template.points, r, t) - q_mean) ** 2))
     objective = float(np.mean(energies))
-    return gap / objective if objective > 0 else 0.0
+    return gap / objective if objective > floor else 0.0
 
 
 def principal_modes(shapes: np.ndarray, count: int):
@@ -297,7 +305,8 @@ def principal_modes(shapes: np.ndarray, count: int):
 
     Returns mean (V, 3), unit modes (k, V, 3) (each signed so that its largest component is positive), variances
     (k,) (sample variances, K - 1 in the denominator), explained fractions of the total variance (k,; 0 when all
-    shapes are equal) and scores (K, k), with k = min(count, K - 1).
+    shapes are equal) and scores (K, k), with k = min(count, K - 1). The total variance is ``variances.sum() /
+    explained.sum()`` (when not 0).
     """
     k_shapes = len(shapes)
     x = shapes.reshape(k_shapes, -1)
@@ -409,7 +418,8 @@ def atlas(
         template = karcher_update(aligned, template.r, template.t)
         last = regs
     params.update(iterations=len(history), converged=converged)
-    result = _assemble(members, (medoid, grid), history, active, failures, settings, params, timings)
+    frame = (members[medoid].name, grid.points.reshape(-1, 3).mean(axis=0))
+    result = _assemble(members, frame, history, active, failures, settings, params, timings)
     timings["total"] = time.perf_counter() - started
     timings["per_member"] = timings["total"] / len(items)
     return result
@@ -494,8 +504,9 @@ def _register_all(template, members, active, last, options, key, stage, run, sto
     return {active[j - 1]: record for (_, j), record in done.items()}
 
 
-def _assemble(members, medoid, history, active, failures, settings, params, timings) -> Atlas:
-    """The Atlas of the iterate with the least F (over the members kept), in the template's frame and units."""
+def _assemble(members, frame, history, active, failures, settings, params, timings) -> Atlas:
+    """The Atlas of the iterate with the least F (over the members kept), in the template's frame and units; ``frame``
+    is the medoid's name and centroid."""
     objective = np.array([_objective(step, active) for step in history])
     best = history[int(np.argmin(objective))]
     template = best["template"]
@@ -503,26 +514,21 @@ def _assemble(members, medoid, history, active, failures, settings, params, timi
     rows = [best["active"].index(k) for k in active]
     aligned1 = best["aligned"][rows]
     m, n = template.shape
-    sizes = np.array([np.sqrt(members[k].grid.area()) for k in active])
+    grids = [_grids(members[k])[reg.placement] for k, reg in zip(active, regs, strict=True)]
+    sizes = np.array([np.sqrt(g.area()) for g in grids])
     scale = float(sizes.mean())
-    medoid, medoid_grid = medoid
-    centre = medoid_grid.points.reshape(-1, 3).mean(axis=0)
+    medoid, centre = frame
     tic = time.perf_counter()
     shapes = aligned1.reshape(len(active), -1, 3) * scale + centre
     mean, modes, variances, explained, scores = principal_modes(shapes, settings.modes)
     timings["pca"] = time.perf_counter() - tic
     energies = np.array([reg.energy for reg in regs])
-    centroids = []
-    for k, reg in zip(active, regs, strict=True):
-        member = _grids(members[k])[reg.placement]
-        centroids.append(member.at(reg.h).reshape(-1, 3).mean(axis=0))
+    centroids = [g.at(reg.h).reshape(-1, 3).mean(axis=0) for g, reg in zip(grids, regs, strict=True)]
     seconds = np.full((len(active), len(history)), np.nan)
     for i, step in enumerate(history):
         for row, k in enumerate(active):
             if k in step["regs"]:
                 seconds[row, i] = step["regs"][k].seconds
-    from .mesh.export import grid_faces
-
     timings["iterations"] = float(sum(v for s, v in timings.items() if s.startswith("iteration ")))
     return Atlas(
         names=[members[k].name for k in active],
@@ -549,11 +555,12 @@ def _assemble(members, medoid, history, active, failures, settings, params, timi
         objective=objective,
         seconds=seconds,
         failures=dict(failures),
-        medoid=members[medoid].name,
+        medoid=medoid,
         params={
             **params,
             "kept_iteration": int(np.argmin(objective)) + 1,
-            "karcher_gap": karcher_gap(template, aligned1, energies),
+            "karcher_gap": karcher_gap(template, aligned1, energies, params["abs_tol"]),
+            "spread": rms_spread(shapes) / scale,
         },
         timings=timings,
     )

@@ -167,6 +167,8 @@ def _atlas_summary(written) -> str:
         + ("" if result.params["converged"] else ", not converged: raise --max-iterations")
         + ")",
         f"karcher gap    {result.params['karcher_gap']:.3g}   (share of mean E the q-space mean would remove)",
+        f"spread         {100 * result.params['spread']:.3g}% of the template's size (RMS distance of the aligned "
+        "members' vertices from the mean's, sizes equalized)",
         "explained      "
         + ", ".join(f"mode {m + 1} {100 * e:.1f}%" for m, e in enumerate(result.explained[: min(k, 5)])),
         f"time (s)       total {result.timings['total']:.1f}, per member {result.timings['per_member']:.2f} "
