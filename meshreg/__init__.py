@@ -14,15 +14,19 @@ from .grid import GridSurface, read_grid
 from .options import MODES, Advanced, Options
 from .register import register, register_symmetric, register_with
 from .result import Registration
+from .shape_atlas import Atlas, AtlasSettings, atlas
 
 __all__ = [
     "MODES",
     "Advanced",
+    "Atlas",
+    "AtlasSettings",
     "DistanceMatrix",
     "GridSurface",
     "InputError",
     "Options",
     "Registration",
+    "atlas",
     "distance_matrix",
     "read_grid",
     "register",

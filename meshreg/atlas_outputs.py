@@ -6,7 +6,7 @@ Outputs of an atlas in the directory ``out``:
 - ``template.ply``: the template on its grid (M N vertices, two triangles per cell), coloured by grid position;
 - ``aligned/<name>.ply``: every member on the template's grid and in its frame, same faces and colours, so vertex k
   is the same point on every file and on the template;
-- ``atlas.npz``: :class:`meshreg.atlas.Atlas` (template, aligned vertices, rotations, energies, reparametrizations,
+- ``atlas.npz``: :class:`meshreg.Atlas` (template, aligned vertices, rotations, energies, reparametrizations,
   PCA, parameters, timings);
 - ``modes.png``: the first three modes at -2, 0, +2 standard deviations; ``scores.png``: the members' scores and the
   explained variance.
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .atlas import ATLAS_OPTIONS, Atlas, AtlasSettings, atlas, canonical_correlations
 from .errors import InputError
 from .options import Options
+from .shape_atlas import ATLAS_OPTIONS, Atlas, AtlasSettings, atlas, canonical_correlations
 
 ATLAS_FILE = "atlas.npz"
 TEMPLATE_FILE = "template.ply"

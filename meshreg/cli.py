@@ -187,9 +187,9 @@ def _atlas_summary(written) -> str:
 
 
 def cmd_atlas(args) -> int:
-    from .atlas import ATLAS_RESOLUTION, AtlasSettings
     from .atlas_outputs import atlas_demo, atlas_files
     from .options import options_from_args
+    from .shape_atlas import ATLAS_RESOLUTION, AtlasSettings
 
     progress, close = _stage_bars(args.quiet)
     try:
@@ -281,7 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
     matrix.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     matrix.set_defaults(func=cmd_matrix)
 
-    from .atlas import ATLAS_RESOLUTION, AtlasSettings
+    from .shape_atlas import ATLAS_RESOLUTION, AtlasSettings
 
     defaults = AtlasSettings()
     atlas = sub.add_parser(

@@ -13,7 +13,12 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from meshreg import register
-from meshreg.atlas import (
+from meshreg.errors import InputError
+from meshreg.grid import GridSurface
+from meshreg.mesh.samples import random_disk_mesh
+from meshreg.samples import bump, sample, warp
+from meshreg.search import ORIENTATION_PRESERVING, apply_symmetry
+from meshreg.shape_atlas import (
     ATLAS_OPTIONS,
     Atlas,
     AtlasSettings,
@@ -21,11 +26,6 @@ from meshreg.atlas import (
     canonical_correlations,
     principal_modes,
 )
-from meshreg.errors import InputError
-from meshreg.grid import GridSurface
-from meshreg.mesh.samples import random_disk_mesh
-from meshreg.samples import bump, sample, warp
-from meshreg.search import ORIENTATION_PRESERVING, apply_symmetry
 
 # a coarse, quick registration for the tests that check bookkeeping rather than accuracy
 QUICK = ATLAS_OPTIONS.replace(refine="none", max_starts=1)
