@@ -41,7 +41,7 @@ class WrittenAtlas:
 
     atlas: Atlas
     files: list[Path]
-    params: np.ndarray | None = None
+    known: np.ndarray | None = None
     correlations: np.ndarray | None = None
 
 
@@ -170,8 +170,8 @@ def atlas_demo(out, *, count: int = 12, jobs: int | None = None, progress=None) 
     )
     written = atlas_files(files, out, jobs=jobs, progress=progress)
     kept = [int(name.split("_")[-1]) for name in written.atlas.names]
-    written.params = params[kept]
-    written.correlations = canonical_correlations(written.atlas.scores[:, :2], written.params)
+    written.known = params[kept]
+    written.correlations = canonical_correlations(written.atlas.scores[:, :2], written.known)
     return written
 
 

@@ -158,7 +158,7 @@ def _draw_surface(ax, points: np.ndarray, faces: np.ndarray, values: np.ndarray,
     ax.set_xlim(box[0, 0], box[1, 0])
     ax.set_ylim(box[0, 1], box[1, 1])
     ax.set_zlim(box[0, 2], box[1, 2])
-    ax.set_box_aspect(box[1] - box[0] + 1e-9)
+    ax.set_box_aspect(box[1] - box[0] + 1e-9, zoom=1.5)
     ax.view_init(elev=35, azim=-70)
     ax.set_axis_off()
 
@@ -198,7 +198,7 @@ def plot_modes(mean: np.ndarray, modes: np.ndarray, deviations: np.ndarray, face
     shapes = np.array([mean + s * deviations[m] * modes[m] for m in range(shown) for s in steps] or [mean])
     turned, box = _viewed(shapes, faces)
     normals = _vertex_normals(mean, faces)
-    fig = Figure(figsize=(9, 2.8 * max(shown, 1)))
+    fig = Figure(figsize=(9, 2.4 * max(shown, 1)))
     for m in range(shown):
         along = np.sum(2.0 * deviations[m] * modes[m] * normals, axis=1)
         limit = np.abs(along).max()
