@@ -24,16 +24,22 @@ _LAZY = {
     "register_symmetric": "pipeline",
     "register_with": "pipeline",
     "Registration": "result",
+    "Atlas": "shape_atlas",
+    "AtlasSettings": "shape_atlas",
+    "atlas": "shape_atlas",
 }
 
 __all__ = [
     "MODES",
     "Advanced",
+    "Atlas",
+    "AtlasSettings",
     "DistanceMatrix",
     "GridSurface",
     "InputError",
     "Options",
     "Registration",
+    "atlas",
     "distance_matrix",
     "read_grid",
     "register",

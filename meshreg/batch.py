@@ -28,6 +28,7 @@ from .errors import InputError
 from .grid import GridSurface, read_grid
 from .options import Options
 from .pipeline import register_with
+from .result import Registration
 
 CHECKPOINT_SUFFIX = ".checkpoint.jsonl"
 
@@ -45,10 +46,12 @@ class Prepared:
 def prepare_surface(item, name: str | None = None, options: Options | None = None) -> Prepared:
     """Read and prepare one surface: a GridSurface, an (M, N, 3) array, a (vertices, faces) pair, or a path to a
     grid file or a mesh (see :func:`meshreg.mesh.corners.mesh_grids`: a mesh without four clear corners
-    keeps its grids for ``options.corner_search`` corner placements). Errors (unreadable file, not a disk, ...)
-    are returned in ``error``, not raised."""
+    keeps its grids for ``options.corner_search`` corner placements); a Prepared is returned as it is. Errors
+    (unreadable file, not a disk, ...) are returned in ``error``, not raised."""
     from .mesh.topology import MESH_SUFFIXES
 
+    if isinstance(item, Prepared):
+        return item
     name = name or (str(item) if isinstance(item, (str, Path)) else "surface")
     try:
         if isinstance(item, GridSurface):
@@ -77,6 +80,12 @@ def register_pair(first: GridSurface, second: GridSurface | list, options: Optio
     BLAS is held to one thread: worker processes forked from a parent with a threaded OpenBLAS ran pairs
     5-10x slower on a 2-core machine, and one pair per core is the parallelism that pays.
     """
+    result, record = registered_pair(first, second, options)
+    return {"energy": result.energy, "rotation": result.rotation.tolist(), **record}
+
+
+def registered_pair(first: GridSurface, second: GridSurface | list, options: Options) -> tuple[Registration, dict]:
+    """:func:`register_pair`'s registration and its record (``seconds``, and ``placement`` for a list)."""
     from threadpoolctl import threadpool_limits
 
     tic = time.perf_counter()
@@ -85,15 +94,11 @@ def register_pair(first: GridSurface, second: GridSurface | list, options: Optio
         if isinstance(second, list):
             from .mesh.corners import best_placement
 
-            record["placement"] = best_placement(first, second)
+            record["placement"] = best_placement(first, second, options.keep_orientation)
             second = second[record["placement"]]
         result = register_with(first, second, options)
-    return {
-        "energy": result.energy,
-        "rotation": result.rotation.tolist(),
-        "seconds": time.perf_counter() - tic,
-        **record,
-    }
+    record["seconds"] = time.perf_counter() - tic
+    return result, record
 
 
 @dataclass
@@ -262,7 +267,23 @@ def distance_matrix(
     prepared = [prepare_surface(x, nm, options) for x, nm in zip(items, names, strict=True)]
     run_params = options.as_dict()
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
-    store = Checkpoint(checkpoint, _run_key(names, [p.grid for p in prepared], run_params)) if checkpoint else None
+    key = _run_key(names, [p.grid for p in prepared], run_params)
+    done = run_checkpointed(
+        prepared, pairs, options, key=key, checkpoint=checkpoint, client=client, jobs=jobs, progress=progress
+    )
+    return _assemble(names, done, run_params)
+
+
+def run_checkpointed(
+    prepared, pairs, options: Options, *, key: str, checkpoint=None, client=None, jobs=None, progress=None, task=None
+) -> dict:
+    """Run every pair (i, j) of ``pairs`` once (see :func:`run_pairs`) and return ``{(i, j): record}``.
+
+    With ``checkpoint`` (a path), each finished pair is appended to that JSON-lines file, tied to the run by
+    ``key``; pairs already there are not run again. A pair with a surface that could not be prepared gets an
+    error record. ``progress(done, total)`` is called at the start and after every pair.
+    """
+    store = Checkpoint(checkpoint, key) if checkpoint else None
     done = dict(store.done) if store else {}
     notify = progress or (lambda finished, total: None)
     notify(len(done), len(pairs))
@@ -284,14 +305,11 @@ def distance_matrix(
         else:
             todo.append((i, j))
     try:
-        if client is not None:
-            _run_dask(client, prepared, todo, options, finish)
-        else:
-            _run_local(prepared, todo, options, finish, jobs or os.cpu_count() or 1)
+        run_pairs(prepared, todo, options, finish, client=client, jobs=jobs, task=task)
     finally:
         if store:
             store.close()
-    return _assemble(names, done, run_params)
+    return done
 
 
 def _outcome(call) -> dict:
@@ -309,15 +327,25 @@ def _seconds(p: Prepared):
     return [p.grid, *p.placements] if p.placements else p.grid
 
 
-def _run_local(prepared, todo, options: Options, finish, jobs: int) -> None:
+def run_pairs(prepared, todo, options: Options, finish, *, client=None, jobs: int | None = None, task=None) -> None:
+    """Run ``task(prepared[i].grid, second, options)`` for each pair (i, j) of ``todo``, ``second`` being surface
+    j's grid or its corner placements, on the Dask ``client`` or a local pool of ``jobs`` processes (default: the
+    machine's cores; 1 runs in this process), and call ``finish(i, j, record)`` as each ends (a failed pair's
+    record is ``{"error": reason}``). ``task`` defaults to :func:`register_pair`; it must be picklable."""
+    task = task or register_pair
+    if client is not None:
+        _run_dask(client, prepared, todo, options, finish, task)
+    else:
+        _run_local(prepared, todo, options, finish, jobs or os.cpu_count() or 1, task)
+
+
+def _run_local(prepared, todo, options: Options, finish, jobs: int, task=register_pair) -> None:
     if jobs <= 1:
         for i, j in todo:
-            finish(i, j, _outcome(partial(register_pair, prepared[i].grid, _seconds(prepared[j]), options)))
+            finish(i, j, _outcome(partial(task, prepared[i].grid, _seconds(prepared[j]), options)))
         return
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        running = {
-            pool.submit(register_pair, prepared[i].grid, _seconds(prepared[j]), options): (i, j) for i, j in todo
-        }
+        running = {pool.submit(task, prepared[i].grid, _seconds(prepared[j]), options): (i, j) for i, j in todo}
         try:
             while running:
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -329,13 +357,13 @@ def _run_local(prepared, todo, options: Options, finish, jobs: int) -> None:
             raise
 
 
-def _run_dask(client, prepared, todo, options, finish) -> None:
+def _run_dask(client, prepared, todo, options, finish, task=register_pair) -> None:
     from distributed import as_completed
 
     used = {k for pair in todo for k in pair}
     firsts = {k: client.scatter(prepared[k].grid) for k in used}
     seconds = {k: client.scatter(_seconds(prepared[k])) for k in used}
-    futures = {client.submit(register_pair, firsts[i], seconds[j], options, pure=False): (i, j) for i, j in todo}
+    futures = {client.submit(task, firsts[i], seconds[j], options, pure=False): (i, j) for i, j in todo}
     try:
         for future in as_completed(futures):
             i, j = futures[future]

@@ -2,6 +2,9 @@
 
 meshreg register FIRST SECOND -o OUT [--mode auto|dp|gd|dp+gd] [--window W] [--basis KL] ...
 meshreg matrix FILES... -o D.npz [--jobs N] [--scheduler URL] [--plot]
+meshreg atlas FILES... -o OUT [--jobs N] [--scheduler URL] [--modes K] ...   template, one connectivity, modes
+meshreg atlas --demo -o OUT                    the atlas of a family of deformed terrain patches
+meshreg morph A B -o morph.gif | meshreg morph OUT/atlas.npz --mode 1 -o mode1.gif
 meshreg paper [--grid M] [--modes ...]        rerun the paper's ten pairs beside its numbers
 meshreg demo [-o OUT]                          register a sample pair and write result + figures
 
@@ -149,6 +152,101 @@ def cmd_view(args) -> int:
     return 0
 
 
+def _stage_bars(quiet: bool):
+    """A progress callback ``(stage, done, total)`` showing one tqdm bar per stage, and a function closing the last."""
+    from tqdm import tqdm
+
+    bars = {}
+
+    def progress(stage, done, total):
+        if stage not in bars:
+            for bar in bars.values():
+                bar.close()
+            bars[stage] = tqdm(desc=stage, total=total, initial=done, unit=" reg", disable=quiet, leave=False)
+        bars[stage].n = done
+        bars[stage].refresh()
+
+    def close():
+        for bar in bars.values():
+            bar.close()
+
+    return progress, close
+
+
+def _atlas_summary(written) -> str:
+    result = written.atlas
+    k = len(result.explained)
+    rows = [
+        f"members        {len(result.names)} kept, {len(result.failures)} left out; medoid {result.medoid}",
+        f"template       {result.grid[0]} x {result.grid[1]} grid ({len(result.template)} vertices, "
+        f"{len(result.faces)} triangles), shared by every aligned member",
+        "mean E         "
+        + " -> ".join(f"{e:.4g}" for e in result.objective)
+        + f"   (per iteration; kept iteration {result.params['kept_iteration']}"
+        + ("" if result.params["converged"] else ", not converged: raise --max-iterations")
+        + ")",
+        f"karcher gap    {result.params['karcher_gap']:.3g}   (share of mean E the q-space mean would remove)",
+        f"spread         {100 * result.params['spread']:.3g}% of the template's size (RMS distance of the aligned "
+        "members' vertices from the mean's, sizes equalized)",
+        "explained      "
+        + ", ".join(f"mode {m + 1} {100 * e:.1f}%" for m, e in enumerate(result.explained[: min(k, 5)])),
+        f"time (s)       total {result.timings['total']:.1f}, per member {result.timings['per_member']:.2f} "
+        f"(medoid {result.timings['medoid']:.1f}, iterations {result.timings['iterations']:.1f})",
+    ]
+    for name, reason in result.failures.items():
+        rows.append(f"left out       {name}: {reason}")
+    if written.correlations is not None:
+        rows.append(
+            "known params   canonical correlations of modes 1-2 scores with (relief, uplift): "
+            + ", ".join(f"{c:.3f}" for c in written.correlations)
+        )
+    shown = [f for f in written.files if f.parent.name != "aligned"]
+    rows.append("written        " + ", ".join(str(f) for f in shown) + f", aligned/ ({len(result.names)} PLY)")
+    return "\n".join(rows)
+
+
+def cmd_atlas(args) -> int:
+    from .atlas_outputs import atlas_demo, atlas_files
+    from .options import options_from_args
+    from .shape_atlas import ATLAS_RESOLUTION, AtlasSettings
+
+    progress, close = _stage_bars(args.quiet)
+    try:
+        if args.demo:
+            if args.files:
+                raise InputError("--demo builds its own family: give no FILES")
+            print("demo: 12 deformed terrain patches (relief and uplift known), random triangulations of ~2k")
+            print("      triangles, random poses and scales; their atlas")
+            written = atlas_demo(args.output, jobs=args.jobs, progress=progress)
+        else:
+            if len(args.files) < 2:
+                raise InputError("an atlas needs at least 2 FILES (or --demo)")
+            options = options_from_args(args, resolution=ATLAS_RESOLUTION, keep_orientation=not args.any_orientation)
+            given = {k: getattr(args, k) for k in ("tolerance", "max_iterations", "modes", "medoid_grid")}
+            settings = AtlasSettings(**{k: v for k, v in given.items() if v is not None})
+            written = atlas_files(
+                args.files,
+                args.output,
+                options,
+                settings,
+                jobs=args.jobs,
+                scheduler=args.scheduler,
+                progress=progress,
+            )
+    finally:
+        close()
+    print(_atlas_summary(written))
+    return 0
+
+
+def cmd_morph(args) -> int:
+    from .atlas_outputs import morph_files
+
+    path = morph_files(args.first, args.second, args.output, mode=args.mode, frames=args.frames)
+    print(f"written        {path} ({2 * args.frames - 2} frames, there and back)")
+    return 0
+
+
 def cmd_paper(args) -> int:
     from .paper import format_table, run_paper
 
@@ -207,6 +305,56 @@ def build_parser() -> argparse.ArgumentParser:
     add_flags(matrix, groups=("registration", "meshes"))
     matrix.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     matrix.set_defaults(func=cmd_matrix)
+
+    from .shape_atlas import ATLAS_RESOLUTION, AtlasSettings
+
+    defaults = AtlasSettings()
+    atlas = sub.add_parser(
+        "atlas",
+        help="elastic template of a collection, every member in its connectivity, and the modes of variation",
+        epilog=f"In an atlas, --resolution defaults to {ATLAS_RESOLUTION} (not 101) and each mesh keeps its front "
+        "side (--keep-orientation is on; --any-orientation turns it off).",
+    )
+    atlas.add_argument("files", nargs="*", help="grid files and/or disk meshes (at least 2)")
+    atlas.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="output directory: template.ply, aligned/NAME.ply, atlas.npz, modes.png, scores.png",
+    )
+    atlas.add_argument(
+        "--demo", action="store_true", help="build a family of 12 deformed terrain patches and its atlas"
+    )
+    atlas.add_argument("--jobs", type=int, default=None, help="local worker processes (default: all cores)")
+    atlas.add_argument("--scheduler", help="a dask.distributed scheduler address, e.g. tcp://host:8786")
+    atlas.add_argument(
+        "--tolerance",
+        type=float,
+        help=f"stop when the mean E to the template falls by at most this fraction (default {defaults.tolerance})",
+    )
+    atlas.add_argument(
+        "--max-iterations", type=int, help=f"most registration rounds (default {defaults.max_iterations})"
+    )
+    atlas.add_argument("--modes", type=int, help=f"principal modes kept (default {defaults.modes})")
+    atlas.add_argument(
+        "--medoid-grid", type=int, help=f"grid of the medoid's coarse distance matrix (default {defaults.medoid_grid})"
+    )
+    atlas.add_argument(
+        "--any-orientation",
+        action="store_true",
+        help="also match members mirrored or wound the other way (default: keep each mesh's front side)",
+    )
+    add_flags(atlas, groups=("registration", "meshes"))
+    atlas.set_defaults(func=cmd_atlas)
+    atlas.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+    morph = sub.add_parser("morph", help="GIF of the straight path between two shapes, or along a mode of an atlas")
+    morph.add_argument("first", help="a surface (mesh or grid file), or an atlas.npz with --mode")
+    morph.add_argument("second", nargs="?", help="the surface to morph into (registered to the first)")
+    morph.add_argument("-o", "--output", required=True, help="the GIF file")
+    morph.add_argument("--mode", type=int, help="animate this mode (from 1) of the atlas, from -2 to +2 sd")
+    morph.add_argument("--frames", type=int, default=24, help="frames one way (default 24; the GIF goes and returns)")
+    morph.set_defaults(func=cmd_morph)
 
     paper = sub.add_parser("paper", help="rerun the paper's ten pairs and print E, R and time beside its numbers")
     paper.add_argument("--grid", type=int, default=101, help="grid size M = N (default 101, as in the paper)")

@@ -173,6 +173,12 @@ class Options:
         Mode "auto": rank starting rotations and symmetries of the square by a coarse DP. Default True.
     symmetries : bool
         Mode "auto" with ``search``: also try the 8 symmetries of the square on the second surface. Default True.
+    keep_orientation : bool
+        Mode "auto" with ``symmetries``: try only the 4 symmetries that keep orientation (the rotations of the
+        square), so that the front side of each surface stays its front side. For meshes whose faces are wound
+        consistently (a cohort from one pipeline): nearly mirror-symmetric sheets otherwise admit a mirrored,
+        upside-down match whose E is within a few percent of the right one. Default False (a mesh wound the
+        other way, or a grid with r and t swapped, is matched too).
     max_starts : int
         Mode "auto": most ranked starts registered in full (see ``Advanced.start_margin``). Default 3.
     start_basis : int
@@ -203,6 +209,7 @@ class Options:
     refine: str = "nodes"
     search: bool = True
     symmetries: bool = True
+    keep_orientation: bool = False
     max_starts: int = 3
     start_basis: int = 3
     smoothing: tuple[float, ...] = (0.1,)
@@ -297,6 +304,13 @@ FLAGS: tuple[Flag, ...] = (
         "mode auto: most ranked starts registered in full (default 3; 1 = the best-ranked only)",
         int,
         metavar="K",
+    ),
+    Flag(
+        "--keep-orientation",
+        "keep_orientation",
+        "mode auto: only the 4 symmetries of the square that keep each surface's front side (meshes wound "
+        "consistently)",
+        const=True,
     ),
     Flag(
         "--max-rounds", "advanced.max_rounds", "most descent + Kabsch rounds per stage (default 10)", int, metavar="N"

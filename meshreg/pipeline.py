@@ -63,6 +63,7 @@ def register(
     refine: str = DEFAULTS.refine,
     search: bool = DEFAULTS.search,
     symmetries: bool = DEFAULTS.symmetries,
+    keep_orientation: bool = DEFAULTS.keep_orientation,
     max_starts: int = DEFAULTS.max_starts,
     start_basis: int = DEFAULTS.start_basis,
     smoothing: tuple[float, ...] = DEFAULTS.smoothing,
@@ -83,7 +84,7 @@ def register(
         Two grids (GridSurface, ndarray (M, N, 3), grid file) or two disk-topology meshes (mesh file,
         ``trimesh.Trimesh``, Open3D ``TriangleMesh``, ``(vertices, faces)``); grid sizes and vertex counts may
         differ. Both are scaled to area 1.
-    mode, window, basis, solver, refine, search, symmetries, max_starts, start_basis, smoothing
+    mode, window, basis, solver, refine, search, symmetries, keep_orientation, max_starts, start_basis, smoothing
         How to register: see :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
     resolution, weights, cleanup, corners1, corners2, corner_search
         How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
@@ -115,6 +116,7 @@ def register(
         refine=refine,
         search=search,
         symmetries=symmetries,
+        keep_orientation=keep_orientation,
         max_starts=max_starts,
         start_basis=start_basis,
         smoothing=smoothing,
@@ -150,7 +152,7 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
     starts = [Start(0, None, float("nan"))]
     if options.mode == "auto" and options.search:
         tic = time.perf_counter()
-        ranked = best_start(first, second, symmetries=options.symmetries)
+        ranked = best_start(first, second, symmetries=options.symmetries, keep_orientation=options.keep_orientation)
         starts = _close_starts(ranked, options.max_starts, options.advanced.start_margin)
         timings["search"] = time.perf_counter() - tic
     solve = SOLVE[options.mode]

@@ -26,6 +26,8 @@ from .srnf import cell_normals
 
 # (swap r and t, flip r, flip t); index 0 is the identity
 SQUARE_SYMMETRIES = tuple(product((False, True), repeat=3))
+# the 4 that keep orientation (an even number of swaps and flips: the rotations of the square)
+ORIENTATION_PRESERVING = tuple(k for k, s in enumerate(SQUARE_SYMMETRIES) if sum(s) % 2 == 0)
 DEFAULT_SEARCH_GRID = 21
 DEFAULT_SEARCH_WINDOW = 6
 
@@ -104,6 +106,7 @@ def best_start(
     second: GridSurface,
     *,
     symmetries: bool = True,
+    keep_orientation: bool = False,
     grid: int = DEFAULT_SEARCH_GRID,
     window: int = DEFAULT_SEARCH_WINDOW,
 ) -> list[Start]:
@@ -114,6 +117,8 @@ def best_start(
     first, second : GridSurface
     symmetries : bool
         Try the 8 symmetries of the square (else only the identity).
+    keep_orientation : bool
+        With ``symmetries``, try only the 4 that keep orientation (:data:`ORIENTATION_PRESERVING`).
     grid : int
         Both surfaces are resampled on grid x grid nodes for the ranking. Default 21.
     window : int
@@ -128,7 +133,8 @@ def best_start(
     coarse2 = second.scaled().resampled(grid, grid)
     rotations = np.concatenate([cube_rotations(), principal_rotations(coarse1, coarse2)])
     starts = []
-    for k in range(len(SQUARE_SYMMETRIES) if symmetries else 1):
+    tried = (ORIENTATION_PRESERVING if keep_orientation else range(len(SQUARE_SYMMETRIES))) if symmetries else (0,)
+    for k in tried:
         ob = Objective(coarse1, apply_symmetry(coarse2, k))
         q2 = ob.second_on_first_grid()
         candidates = [kabsch(ob.best_rotation_covariance(ob.identity)), *rotations]

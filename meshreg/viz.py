@@ -236,3 +236,129 @@ def classical_mds(distance: np.ndarray, dims: int = 2) -> np.ndarray:
     vals, vecs = np.linalg.eigh(b)
     top = np.argsort(vals)[::-1][:dims]
     return vecs[:, top] * np.sqrt(np.maximum(vals[top], 0.0))
+
+
+LIGHT = np.array([-0.4, -0.3, 0.87])  # unit direction of the light in the turned frame (the camera looks down -z)
+
+
+def _draw_surface(ax, points: np.ndarray, faces: np.ndarray, values: np.ndarray, limit: float, box) -> None:
+    """One mesh on a 3D axis, faces coloured by ``values`` (per vertex) on a diverging scale of +-``limit``."""
+    from matplotlib import colormaps
+
+    colors = colormaps["coolwarm"](np.clip(0.5 + 0.5 * values[faces].mean(axis=1) / max(limit, 1e-300), 0, 1))
+    n = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
+    light = np.abs(n @ LIGHT) / np.maximum(np.linalg.norm(n, axis=1), 1e-300)  # two-sided, from above the camera
+    colors[:, :3] *= (0.45 + 0.55 * light)[:, None]
+    surf = ax.plot_trisurf(points[:, 0], points[:, 1], points[:, 2], triangles=faces, linewidth=0, shade=False)
+    surf.set_facecolor(colors)
+    ax.set_xlim(box[0, 0], box[1, 0])
+    ax.set_ylim(box[0, 1], box[1, 1])
+    ax.set_zlim(box[0, 2], box[1, 2])
+    ax.set_box_aspect(box[1] - box[0] + 1e-9, zoom=1.5)
+    ax.view_init(elev=35, azim=-70)
+    ax.set_axis_off()
+
+
+def _vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3)."""
+    n = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
+    out = np.zeros_like(points)
+    for k in range(3):
+        np.add.at(out, faces[:, k], n)
+    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
+
+
+def _viewed(shapes: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shapes (S, V, 3) turned so that the first one's mean normal faces the camera, and their common box (2, 3)."""
+    view = _view_rotation(shapes[0], faces)
+    centre = shapes[0].mean(axis=0)
+    turned = (shapes - centre) @ view.T
+    return turned, np.array([turned.reshape(-1, 3).min(axis=0), turned.reshape(-1, 3).max(axis=0)])
+
+
+def plot_modes(mean: np.ndarray, modes: np.ndarray, deviations: np.ndarray, faces: np.ndarray, path, title="") -> Path:
+    """PNG: each mode (rows) at -2, 0 and +2 standard deviations from the mean (columns), coloured by the signed
+    displacement along the mean's normals (red out, blue in).
+
+    Parameters
+    ----------
+    mean : ndarray (V, 3)
+    modes : ndarray (k, V, 3)
+        Unit modes (at most the first three are drawn).
+    deviations : ndarray (k,)
+        Standard deviation of each mode's scores.
+    faces : ndarray (F, 3)
+    """
+    shown = min(3, len(modes))
+    steps = (-2.0, 0.0, 2.0)
+    shapes = np.array([mean + s * deviations[m] * modes[m] for m in range(shown) for s in steps] or [mean])
+    turned, box = _viewed(shapes, faces)
+    normals = _vertex_normals(mean, faces)
+    fig = Figure(figsize=(9, 2.4 * max(shown, 1)))
+    for m in range(shown):
+        along = np.sum(2.0 * deviations[m] * modes[m] * normals, axis=1)
+        limit = np.abs(along).max()
+        for c, s in enumerate(steps):
+            ax = fig.add_subplot(shown, 3, 3 * m + c + 1, projection="3d")
+            _draw_surface(ax, turned[3 * m + c], faces, 0.5 * s * along, limit, box)
+            ax.set_title(f"mode {m + 1}: {s:+.0f} sd" if s else f"mode {m + 1}: mean", fontsize=10)
+    if not shown:
+        ax = fig.add_subplot(1, 1, 1, projection="3d")
+        _draw_surface(ax, turned[0], faces, np.zeros(len(mean)), 1.0, box)
+        ax.set_title("mean (no variation)")
+    fig.suptitle(title or "modes of variation")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=80)
+    return path
+
+
+def plot_scores(scores: np.ndarray, explained: np.ndarray, names, path, title: str = "") -> Path:
+    """PNG: the members' scores on modes 1 and 2 (and 1 and 3), labelled, and the explained variance per mode."""
+    fig = Figure(figsize=(14, 4.5))
+    labels = [Path(str(n)).stem for n in names]
+    pairs = [(0, 1), (0, 2)] if scores.shape[1] > 2 else [(0, min(1, scores.shape[1] - 1))]
+    for k, (a, b) in enumerate(pairs if scores.shape[1] else []):
+        ax = fig.add_subplot(1, 3, k + 1)
+        ax.scatter(scores[:, a], scores[:, b], c="tab:blue")
+        for row, label in enumerate(labels):
+            ax.annotate(label, (scores[row, a], scores[row, b]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlabel(f"mode {a + 1} ({100 * explained[a]:.1f}%)")
+        ax.set_ylabel(f"mode {b + 1} ({100 * explained[b]:.1f}%)")
+        ax.axhline(0, color="0.8", lw=0.8)
+        ax.axvline(0, color="0.8", lw=0.8)
+    bars = fig.add_subplot(1, 3, 3)
+    shown = np.arange(1, len(explained) + 1)
+    bars.bar(shown, 100 * explained, color="tab:blue")
+    bars.plot(shown, 100 * np.cumsum(explained), "k.-", label="cumulative")
+    bars.set_xlabel("mode")
+    bars.set_ylabel("explained variance (%)")
+    bars.set_ylim(0, 100)
+    bars.legend(loc="center right")
+    fig.suptitle(title or f"{len(labels)} members: scores on the principal modes")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=90)
+    return path
+
+
+def write_morph(frames: np.ndarray, faces: np.ndarray, path, fps: int = 12, title: str = "") -> Path:
+    """GIF (Pillow, through matplotlib's PillowWriter): the meshes ``frames`` (S, V, 3) in turn, seen from the first
+    one's mean normal, faces coloured by the displacement from the first frame along its normals."""
+    from matplotlib.animation import PillowWriter
+
+    turned, box = _viewed(frames, faces)
+    normals = _vertex_normals(turned[0], faces)
+    along = np.sum((turned - turned[0]) * normals, axis=2)
+    limit = np.abs(along).max()
+    fig = Figure(figsize=(5, 4.2))
+    ax = fig.add_subplot(1, 1, 1, projection="3d")
+    path = Path(path)
+    writer = PillowWriter(fps=fps)
+    with writer.saving(fig, str(path), dpi=80):
+        for k, frame in enumerate(turned):
+            ax.clear()
+            _draw_surface(ax, frame, faces, along[k], limit, box)
+            ax.set_title(title, fontsize=9)
+            writer.grab_frame()
+    return path

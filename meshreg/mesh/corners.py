@@ -33,17 +33,19 @@ def placement_corners(disk: DiskMesh, trials: int) -> list[np.ndarray]:
     return [quarter_corners(disk, start % 1.0) for start in placement_starts(disk, trials)]
 
 
-def placement_energy(coarse1, coarse2) -> float:
-    """Rank of a corner placement: the best coarse DP energy over the square's symmetries and rotations."""
-    return best_start(coarse1, coarse2)[0].energy
+def placement_energy(coarse1, coarse2, keep_orientation: bool = False) -> float:
+    """Rank of a corner placement: the best coarse DP energy over the square's symmetries (those that keep
+    orientation with ``keep_orientation``) and rotations."""
+    return best_start(coarse1, coarse2, keep_orientation=keep_orientation)[0].energy
 
 
-def best_placement(first: GridSurface, placements: list[GridSurface]) -> int:
+def best_placement(first: GridSurface, placements: list[GridSurface], keep_orientation: bool = False) -> int:
     """Index of the second surface's corner placement (each a grid) that matches ``first`` best, by
     :func:`placement_energy` on CORNER_SEARCH_GRID x CORNER_SEARCH_GRID grids."""
     n = CORNER_SEARCH_GRID
     coarse = first.scaled().resampled(n, n)
-    return int(np.argmin([placement_energy(coarse, g.scaled().resampled(n, n)) for g in placements]))
+    energies = [placement_energy(coarse, g.scaled().resampled(n, n), keep_orientation) for g in placements]
+    return int(np.argmin(energies))
 
 
 def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options) -> tuple[list, list | None]:
@@ -56,12 +58,12 @@ def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Op
     if not search:
         return pos, None
     pos[0] = placement_corners(disks[0], 1)[0]
-    pos[1], tried = search_corners(maps[0], pos[0], maps[1], options.corner_search)
+    pos[1], tried = search_corners(maps[0], pos[0], maps[1], options.corner_search, options.keep_orientation)
     return pos, tried
 
 
 def search_corners(
-    first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, trials: int = 8
+    first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, trials: int = 8, keep_orientation: bool = False
 ) -> tuple[np.ndarray, list]:
     """Corners of the second mesh that best match the first's: the ``trials`` placements of
     :func:`placement_starts`, then one halving step around the best, ranked by :func:`placement_energy`
@@ -78,7 +80,7 @@ def search_corners(
 
     def energy(start):
         uv = second(quarter_corners(disk2, start))[0]
-        return placement_energy(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n))
+        return placement_energy(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n), keep_orientation)
 
     starts = placement_starts(disk2, trials)
     tried = [(start, energy(start)) for start in starts]

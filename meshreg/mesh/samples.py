@@ -134,6 +134,36 @@ def write_demo_meshes(folder, pair=None) -> tuple[Path, Path]:
     return paths
 
 
+def terrain_family(count: int = 12, seed: int = 0, n_points: int = 1000):
+    """A collection with known generating parameters: deformed variants of the terrain patch, each a random
+    triangulation (``n_points`` +-10% random interior vertices, about 2 ``n_points`` triangles), randomly rotated,
+    scaled and shifted.
+
+    Member k is (u, v, relief_k z(u, v) + uplift_k sin(pi u) sin(pi v)), z the patch's height
+    (:func:`terrain_function`): relief in [1, 2.5] is its vertical exaggeration, uplift in [-0.15, 0.15] a dome
+    (or a basin) across the patch, both drawn uniformly.
+
+    Returns the meshes [(vertices, faces)] and the parameters (count, 2): relief, uplift.
+    """
+    rng = np.random.default_rng(seed)
+    base = terrain_function()
+    params = np.c_[rng.uniform(1.0, 2.5, count), rng.uniform(-0.15, 0.15, count)]
+    meshes = []
+    for k, (relief, uplift) in enumerate(params):
+
+        def surface(u, v, relief=relief, uplift=uplift):
+            p = base(u, v)
+            return np.stack(
+                [p[..., 0], p[..., 1], relief * p[..., 2] + uplift * np.sin(np.pi * u) * np.sin(np.pi * v)], -1
+            )
+
+        size = int(n_points * rng.uniform(0.9, 1.1))
+        rotation = Rotation.random(random_state=rng.integers(2**31)).as_matrix()
+        v, f, _ = random_disk_mesh(surface, size, seed + 1000 + k, rotation=rotation, scale=rng.uniform(0.5, 2.0))
+        meshes.append((v, f))
+    return meshes, params
+
+
 FACE_ROTATION = Rotation.from_euler("zxz", [70, 35, -120], degrees=True).as_matrix()
 
 
