@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 import meshreg
 from meshreg.mesh.samples import random_disk_mesh, terrain_family
-from meshreg.shape_atlas import canonical_correlations
+from meshreg.shape_stats import canonical_correlations
 
 
 def bump_sheets(count: int, seed: int = 1):

@@ -24,8 +24,8 @@ _LAZY = {
     "register_symmetric": "pipeline",
     "register_with": "pipeline",
     "Registration": "result",
-    "Atlas": "shape_atlas",
-    "AtlasSettings": "shape_atlas",
+    "Atlas": "atlas_result",
+    "AtlasSettings": "atlas_settings",
     "atlas": "shape_atlas",
 }
 

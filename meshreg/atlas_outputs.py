@@ -22,9 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .atlas_result import Atlas
+from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
 from .options import Options
-from .shape_atlas import ATLAS_OPTIONS, Atlas, AtlasSettings, atlas, canonical_correlations
+from .shape_atlas import atlas
+from .shape_stats import canonical_correlations
 
 ATLAS_FILE = "atlas.npz"
 TEMPLATE_FILE = "template.ply"

@@ -207,8 +207,8 @@ def _atlas_summary(written) -> str:
 
 def cmd_atlas(args) -> int:
     from .atlas_outputs import atlas_demo, atlas_files
+    from .atlas_settings import ATLAS_RESOLUTION, AtlasSettings
     from .options import options_from_args
-    from .shape_atlas import ATLAS_RESOLUTION, AtlasSettings
 
     progress, close = _stage_bars(args.quiet)
     try:
@@ -256,11 +256,16 @@ def cmd_paper(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .options import MODES, add_flags
-
     parser = argparse.ArgumentParser(prog="meshreg", description="Elastic shape registration of surfaces.")
     parser.add_argument("--version", action="version", version=f"meshreg {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    for add in (_add_register, _add_view, _add_demo, _add_matrix, _add_atlas, _add_morph, _add_paper):
+        add(sub)
+    return parser
+
+
+def _add_register(sub) -> None:
+    from .options import add_flags
 
     reg = sub.add_parser("register", help="register two surfaces (two disk meshes or two grid files)")
     reg.add_argument(
@@ -283,16 +288,24 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     reg.set_defaults(func=cmd_register)
 
+
+def _add_view(sub) -> None:
     view = sub.add_parser("view", help="write OUT/view.html, an interactive page of a mesh registration in OUT")
     view.add_argument("output", metavar="OUT", help="the output directory of a `meshreg register` of two meshes")
     view.set_defaults(func=cmd_view)
 
+
+def _add_demo(sub) -> None:
     demo = sub.add_parser(
         "demo", help="register two sample terrain meshes and write coloured meshes, result and figures"
     )
     demo.add_argument("-o", "--output", default="meshreg-demo", help="output directory (default meshreg-demo)")
     demo.add_argument("-q", "--quiet", action="store_true")
     demo.set_defaults(func=cmd_demo)
+
+
+def _add_matrix(sub) -> None:
+    from .options import add_flags
 
     matrix = sub.add_parser("matrix", help="pairwise elastic distances of a collection (grids and/or meshes)")
     matrix.add_argument("files", nargs="+", help="grid files and/or meshes")
@@ -306,7 +319,10 @@ def build_parser() -> argparse.ArgumentParser:
     matrix.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     matrix.set_defaults(func=cmd_matrix)
 
-    from .shape_atlas import ATLAS_RESOLUTION, AtlasSettings
+
+def _add_atlas(sub) -> None:
+    from .atlas_settings import ATLAS_RESOLUTION, AtlasSettings
+    from .options import add_flags
 
     defaults = AtlasSettings()
     atlas = sub.add_parser(
@@ -348,6 +364,8 @@ def build_parser() -> argparse.ArgumentParser:
     atlas.set_defaults(func=cmd_atlas)
     atlas.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
+
+def _add_morph(sub) -> None:
     morph = sub.add_parser("morph", help="GIF of the straight path between two shapes, or along a mode of an atlas")
     morph.add_argument("first", help="a surface (mesh or grid file), or an atlas.npz with --mode")
     morph.add_argument("second", nargs="?", help="the surface to morph into (registered to the first)")
@@ -356,12 +374,15 @@ def build_parser() -> argparse.ArgumentParser:
     morph.add_argument("--frames", type=int, default=24, help="frames one way (default 24; the GIF goes and returns)")
     morph.set_defaults(func=cmd_morph)
 
+
+def _add_paper(sub) -> None:
+    from .options import MODES
+
     paper = sub.add_parser("paper", help="rerun the paper's ten pairs and print E, R and time beside its numbers")
     paper.add_argument("--grid", type=int, default=101, help="grid size M = N (default 101, as in the paper)")
     paper.add_argument("--modes", nargs="+", choices=MODES, default=["dp", "gd", "dp+gd", "auto"])
     paper.add_argument("-q", "--quiet", action="store_true")
     paper.set_defaults(func=cmd_paper)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -39,179 +39,21 @@ from __future__ import annotations
 
 import base64
 import hashlib
-import json
-import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .atlas_result import Atlas
+from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .batch import Prepared, _run_key, distance_matrix, prepare_surface, registered_pair, run_checkpointed
 from .errors import InputError
 from .grid import GridSurface
 from .mesh.export import grid_faces
-from .options import Options, _integer, _number
+from .options import Options
 from .search import apply_symmetry, symmetry_map
-from .srnf import cell_weights, shape_function
-
-ATLAS_RESOLUTION = 41
-ATLAS_OPTIONS = Options(resolution=ATLAS_RESOLUTION, keep_orientation=True)
-"""The atlas's registration defaults: :class:`~meshreg.options.Options` but for meshes resampled on 41 x 41 grids (a
-2k-triangle mesh has about 32 x 32 vertices; 101 costs 2-3x the time for detail such meshes do not hold) and
-``keep_orientation`` (a cohort's meshes are wound alike; mirrored matches of nearly symmetric members come within a
-few percent of the right E and would put vertex k at mirrored places on different members)."""
-
-
-@dataclass(frozen=True)
-class AtlasSettings:
-    """How the template is iterated and what the atlas keeps; validated when made.
-
-    Attributes
-    ----------
-    tolerance : float
-        Stop when the mean energy F to the template falls by at most this fraction of itself in one iteration (plus
-        ``Options.advanced.abs_tol``, the accuracy of E). Default 0.01.
-    max_iterations : int
-        Most registration rounds (the first registers to the medoid). Default 8.
-    modes : int
-        Principal modes kept (at most the number of members minus one). Default 10.
-    medoid_grid : int
-        Nodes per axis of the coarse grids the medoid's distance matrix is computed on. Default 21.
-    """
-
-    tolerance: float = 0.01
-    max_iterations: int = 8
-    modes: int = 10
-    medoid_grid: int = 21
-
-    def __post_init__(self):
-        _number("tolerance", self.tolerance, 0.0, 1.0)
-        _integer("max_iterations", self.max_iterations, 1, 1000)
-        _integer("modes", self.modes, 1, 100_000)
-        _integer("medoid_grid", self.medoid_grid, 5, 1001)
-
-
-@dataclass
-class Atlas:
-    """A collection in one template and one connectivity, with its principal modes.
-
-    Coordinates are in the *template's frame*: the frame of the medoid as given (the iteration runs there), at the
-    members' mean size. K members were kept; V = M N grid nodes; F = 2 (M - 1)(N - 1) triangles.
-
-    Attributes
-    ----------
-    names : list of str, length K
-    template : ndarray (V, 3)
-        The mean shape, at size ``scale``, centred at ``centre``.
-    faces : ndarray (F, 3)
-        The template grid's triangles (two per cell, :func:`meshreg.mesh.export.grid_faces`), shared by all.
-    grid : (int, int)
-        (M, N); vertex i N + j is grid node (r[i], t[j]).
-    r, t : ndarray (M,), (N,)
-    aligned : ndarray (K, V, 3)
-        Each member on the template's grid (vertex k the same point on all), rotated into the template's frame,
-        at its own size, centred at ``centre``.
-    sizes : ndarray (K,)
-        sqrt(area) of each member (as given).
-    scale : float
-        The template's size: the mean of ``sizes``.
-    centre : ndarray (3,)
-        The centroid (node mean) of the medoid as given; every shape here is centred there.
-    centroids : ndarray (K, 3)
-        Node mean of each member resampled on the template's grid, in its own frame: that resampled member is
-        ``(aligned[k] - centre) @ rotations[k].T + centroids[k]``.
-    rotations : ndarray (K, 3, 3)
-        R of each member's registration (the template rotated onto the member).
-    energies : ndarray (K,)
-        E(template, member), both at area 1.
-    h : ndarray (K, M, N, 2)
-        Each member's reparametrization: its parameter point at each template grid node (symmetry included).
-    symmetries, placements : ndarray (K,) int
-        The symmetry of the square in h, and the corner placement (round-boundary meshes; else 0).
-    mean, modes, variances, explained, scores
-        PCA of the shapes (aligned members scaled to the template's size: shape, not size): mean (V, 3), unit
-        modes (k, V, 3), variances (k,) in squared units, explained variance fractions (k,), scores (K, k) with
-        shape k ~ mean + sum_m scores[k, m] modes[m].
-    objective : ndarray (I,)
-        F = mean E to the template at each iteration; the template kept is the iterate with the least F.
-    seconds : ndarray (K, I)
-        Each member's registration time (wall clock in its worker) at each iteration (NaN: not run).
-    failures : dict
-        name -> why a member was left out.
-    medoid : str
-    params : dict
-        Options, settings, iterations run and kept, convergence, ``karcher_gap`` (see the module) and ``spread``
-        (RMS distance of the shapes' vertices from the mean's, as a fraction of ``scale``).
-    timings : dict
-        Seconds of each stage (``prepare``, ``medoid``, ``iterations``, ``pca``, ``total``) and ``per_member``
-        (total / members given).
-    """
-
-    names: list
-    template: np.ndarray
-    faces: np.ndarray
-    grid: tuple
-    r: np.ndarray
-    t: np.ndarray
-    aligned: np.ndarray
-    sizes: np.ndarray
-    scale: float
-    centre: np.ndarray
-    centroids: np.ndarray
-    rotations: np.ndarray
-    energies: np.ndarray
-    h: np.ndarray
-    symmetries: np.ndarray
-    placements: np.ndarray
-    mean: np.ndarray
-    modes: np.ndarray
-    variances: np.ndarray
-    explained: np.ndarray
-    scores: np.ndarray
-    objective: np.ndarray
-    seconds: np.ndarray
-    failures: dict = field(default_factory=dict)
-    medoid: str = ""
-    params: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
-
-    def save(self, path) -> None:
-        """Write ``.npz`` atomically (the keys are the attribute names; dicts as JSON strings)."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
-        arrays = {k: v for k, v in asdict(self).items() if k not in ("names", "failures", "params", "timings")}
-        np.savez(
-            tmp,
-            **arrays,
-            names=np.array(self.names, dtype=str),
-            failures=json.dumps(self.failures),
-            params=json.dumps(self.params),
-            timings=json.dumps(self.timings),
-        )
-        os.replace(tmp, path)
-
-    @classmethod
-    def load(cls, path) -> Atlas:
-        """Read an atlas written by :meth:`save`."""
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                values = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as err:
-            raise InputError(f"{path}: not a meshreg atlas file ({err})") from None
-        if "modes" not in values or "template" not in values:
-            raise InputError(f"{path}: not a meshreg atlas file (no template or modes)")
-        values["names"] = values["names"].tolist()
-        for key in ("failures", "params", "timings"):
-            values[key] = json.loads(str(values[key]))
-        values["grid"] = tuple(int(x) for x in values["grid"])
-        values["scale"] = float(values["scale"])
-        values["medoid"] = str(values["medoid"])
-        return cls(**values)
-
-    def shapes(self) -> np.ndarray:
-        """The aligned members at the template's size (K, V, 3): what the PCA is of."""
-        return (self.aligned - self.centre) * (self.scale / self.sizes)[:, None, None] + self.centre
+from .shape_stats import karcher_gap, karcher_update, principal_modes, rms_spread
 
 
 @dataclass
@@ -280,51 +122,6 @@ def aligned_shape(member: GridSurface, reg: _Member) -> np.ndarray:
     return points - points.reshape(-1, 3).mean(axis=0)
 
 
-def karcher_update(aligned: np.ndarray, r: np.ndarray, t: np.ndarray) -> GridSurface:
-    """The next template: the node-by-node mean of aligned shapes (K, M, N, 3), centred, at area 1."""
-    mean = GridSurface(aligned.mean(axis=0), r, t).scaled()
-    return GridSurface(mean.points - mean.points.reshape(-1, 3).mean(axis=0), r, t)
-
-
-def rms_spread(shapes: np.ndarray) -> float:
-    """Root mean square distance of the shapes' vertices (K, V, 3) from the mean shape's."""
-    return float(np.sqrt(np.mean(np.sum((shapes - shapes.mean(axis=0)) ** 2, axis=-1))))
-
-
-def karcher_gap(template: GridSurface, aligned: np.ndarray, energies: np.ndarray, floor: float = 0.0) -> float:
-    """||q(T) - mean_j q(aligned_j)||^2 / mean_j E_j: the fraction of the Karcher objective that the mean of the aligned
-    shape functions (the minimizer for these alignments, not a surface in general) would remove (0 when the mean E
-    is at most ``floor``, where it means nothing)."""
-    r, t = template.r, template.t
-    w = cell_weights(r, t)[..., None]
-    q_mean = np.mean([shape_function(a, r, t) for a in aligned], axis=0)
-    gap = float(np.sum(w * (shape_function(template.points, r, t) - q_mean) ** 2))
-    objective = float(np.mean(energies))
-    return gap / objective if objective > floor else 0.0
-
-
-def principal_modes(shapes: np.ndarray, count: int):
-    """PCA of K shapes (K, V, 3) in correspondence.
-
-    Returns mean (V, 3), unit modes (k, V, 3) (each signed so that its largest component is positive), variances
-    (k,) (sample variances, K - 1 in the denominator), explained fractions of the total variance (k,; 0 when all
-    shapes are equal) and scores (K, k), with k = min(count, K - 1). The total variance is ``variances.sum() /
-    explained.sum()`` (when not 0).
-    """
-    k_shapes = len(shapes)
-    x = shapes.reshape(k_shapes, -1)
-    mean = x.mean(axis=0)
-    u, s, vt = np.linalg.svd(x - mean, full_matrices=False)
-    k = min(count, max(k_shapes - 1, 0))
-    signs = np.sign(vt[np.arange(k), np.argmax(np.abs(vt[:k]), axis=1)])
-    modes, scores = vt[:k] * signs[:, None], u[:, :k] * s[:k] * signs
-    denominator = max(k_shapes - 1, 1)
-    variances = s[:k] ** 2 / denominator
-    total = float(np.sum(s**2)) / denominator
-    explained = variances / total if total > 0 else np.zeros(k)
-    return mean.reshape(-1, 3), modes.reshape(k, -1, 3), variances, explained, scores
-
-
 def atlas(
     surfaces,
     options: Options | None = None,
@@ -370,18 +167,8 @@ def atlas(
     options = options or ATLAS_OPTIONS
     settings = settings or AtlasSettings()
     items = list(surfaces)
-    if len(items) < 2:
-        raise InputError("an atlas needs at least 2 surfaces")
-    if names is None:
-        names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
-    if len(set(names)) != len(names):
-        raise InputError("the surfaces' names must be distinct")
-    timings = {}
-    prepared = [prepare_surface(x, nm, options) for x, nm in zip(items, names, strict=True)]
-    failures = {p.name: p.error for p in prepared if p.error}
-    members = [p for p in prepared if not p.error]
-    _enough(members, failures)
-    timings["prepare"] = time.perf_counter() - tic
+    members, failures = _prepared_members(items, names, options)
+    timings = {"prepare": time.perf_counter() - tic}
     store = Path(checkpoint) if checkpoint else None
     if store:
         store.mkdir(parents=True, exist_ok=True)
@@ -389,17 +176,59 @@ def atlas(
     key = _run_key([p.name for p in members], [p.grid for p in members], params)
     run = {"client": client, "jobs": jobs}
     notify = progress or (lambda stage, done, total: None)
-
     tic = time.perf_counter()
     medoid, grid = _medoid(members, options, settings, key, run, store, notify)
     timings["medoid"] = time.perf_counter() - tic
+    context = {"key": key, "run": run, "store": store, "notify": notify}
+    history, active, converged = _iterate(members, grid, options, settings, context, failures, timings)
+    params.update(iterations=len(history), converged=converged)
+    frame = (members[medoid].name, grid.points.reshape(-1, 3).mean(axis=0))
+    result = _assemble(members, frame, history, active, failures, settings, params, timings)
+    timings["total"] = time.perf_counter() - started
+    timings["per_member"] = timings["total"] / len(items)
+    return result
+
+
+def _prepared_members(items: list, names, options: Options) -> tuple[list[Prepared], dict]:
+    """Every surface prepared (read; meshes cleaned, mapped, resampled): those that could be, and name -> reason of
+    those that could not (at least 2 must be left)."""
+    if len(items) < 2:
+        raise InputError("an atlas needs at least 2 surfaces")
+    if names is None:
+        names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
+    if len(set(names)) != len(names):
+        raise InputError("the surfaces' names must be distinct")
+    prepared = [prepare_surface(x, nm, options) for x, nm in zip(items, names, strict=True)]
+    failures = {p.name: p.error for p in prepared if p.error}
+    members = [p for p in prepared if not p.error]
+    _enough(members, failures)
+    return members, failures
+
+
+def _iterate(
+    members, grid: GridSurface, options: Options, settings: AtlasSettings, context: dict, failures: dict, timings: dict
+):
+    """The Karcher iteration from the medoid's grid: register all, average, until F stops falling by
+    ``settings.tolerance``. ``context`` holds the checkpoint key, the executor (``run``), the checkpoint directory
+    and the progress callback. Returns the history of iterations, the members kept and whether it converged."""
     template = karcher_update(grid.scaled().points[None], grid.r, grid.t)
     active = list(range(len(members)))
     history, last, converged = [], None, False
     for iteration in range(1, settings.max_iterations + 1):
         tic = time.perf_counter()
         stage = f"iteration {iteration}"
-        records = _register_all(template, members, active, last, options, key, stage, run, store, notify)
+        records = _register_all(
+            template,
+            members,
+            active,
+            last,
+            options,
+            context["key"],
+            stage,
+            context["run"],
+            context["store"],
+            context["notify"],
+        )
         regs = {}
         for k, record in records.items():
             if "error" in record:
@@ -420,12 +249,7 @@ def atlas(
             break
         template = karcher_update(aligned, template.r, template.t)
         last = regs
-    params.update(iterations=len(history), converged=converged)
-    frame = (members[medoid].name, grid.points.reshape(-1, 3).mean(axis=0))
-    result = _assemble(members, frame, history, active, failures, settings, params, timings)
-    timings["total"] = time.perf_counter() - started
-    timings["per_member"] = timings["total"] / len(items)
-    return result
+    return history, active, converged
 
 
 def _enough(members: list, failures: dict) -> None:
@@ -567,13 +391,3 @@ def _assemble(members, frame, history, active, failures, settings, params, timin
         },
         timings=timings,
     )
-
-
-def canonical_correlations(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Canonical correlations (min(p, q),) of two sets of variables x (K, p) and y (K, q), largest first: how well
-    linear combinations of one (e.g. the first modes' scores) follow the other (e.g. known generating parameters)."""
-    x = np.asarray(x, dtype=float).reshape(len(x), -1)
-    y = np.asarray(y, dtype=float).reshape(len(y), -1)
-    qx, _ = np.linalg.qr(x - x.mean(axis=0))
-    qy, _ = np.linalg.qr(y - y.mean(axis=0))
-    return np.clip(np.linalg.svd(qx.T @ qy, compute_uv=False), 0.0, 1.0)

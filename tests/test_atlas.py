@@ -13,19 +13,15 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from meshreg import register
+from meshreg.atlas_result import Atlas
+from meshreg.atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from meshreg.errors import InputError
 from meshreg.grid import GridSurface
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.samples import bump, sample, warp
 from meshreg.search import ORIENTATION_PRESERVING, apply_symmetry
-from meshreg.shape_atlas import (
-    ATLAS_OPTIONS,
-    Atlas,
-    AtlasSettings,
-    atlas,
-    canonical_correlations,
-    principal_modes,
-)
+from meshreg.shape_atlas import atlas
+from meshreg.shape_stats import canonical_correlations, principal_modes
 
 # a coarse, quick registration for the tests that check bookkeeping rather than accuracy
 QUICK = ATLAS_OPTIONS.replace(refine="none", max_starts=1)
