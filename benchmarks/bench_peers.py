@@ -109,35 +109,17 @@ class Outcome:
 # ---- meshreg and the parametrization alone
 
 
-def on_first(mr: MeshRegistration, uv: np.ndarray) -> np.ndarray:
-    """Points (k, 3) of the first mesh at points uv (k, 2) of its square (NaN rows stay NaN)."""
-    out = np.full((len(uv), 3), np.nan)
-    ok = np.isfinite(uv[:, 0])
-    face, bary, _ = deform.locate(mr.uv1, mr.first.faces, uv[ok])
-    out[ok] = deform.interpolate(mr.first.vertices, mr.first.faces, face, bary)
-    return out
-
-
 def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, MeshRegistration]:
     """meshreg's prediction and the parametrization-alone baseline from the same run."""
     n2 = len(pair.second[0])
     t0 = time.perf_counter()
     mr = register_meshes(pair.first, pair.second, options)
     seconds = time.perf_counter() - t0
-    matched = mr.second.to_input(mr.matched_uv2, n2, [np.nan, np.nan])
-    own = unsymmetric(mr.result.symmetry, mr.second.to_input(mr.uv2, n2, [np.nan, np.nan]))
     energy = mr.result.energy
-    found = Outcome(on_first(mr, matched), seconds, f"E = {energy:.3g}", {"E": energy})
+    found = Outcome(deform.matched_points(mr, n2), seconds, f"E = {energy:.3g}", {"E": energy})
     note = f"h = symmetry {mr.result.symmetry} of the square (meshreg's)"
-    baseline = Outcome(on_first(mr, own), seconds - mr.result.timings["total"], note)
+    baseline = Outcome(deform.parametrization_points(mr, n2), seconds - mr.result.timings["total"], note)
     return found, baseline, mr
-
-
-def unsymmetric(k: int, uv: np.ndarray) -> np.ndarray:
-    """The first's uv (n, 2) that h = sigma_k (no other reparametrization) matches with the second's uv."""
-    probe = np.array([[0.1, 0.2], [0.7, 0.4]])
-    inverse = next(j for j in range(8) if np.allclose(symmetry_map(j, symmetry_map(k, probe)), probe))
-    return symmetry_map(inverse, uv)
 
 
 # ---- the peers' common frame
@@ -349,18 +331,6 @@ def missing(module: str) -> str | None:
 # ---- diagnostics
 
 
-def true_corners(pair: deform.Pair, mr: MeshRegistration) -> tuple[tuple, tuple]:
-    """Input vertex ids of the first's corners as meshreg chose them, and of the second's boundary vertices
-    whose true points are nearest to those corners."""
-    first = tuple(int(mr.first.vertex_map[c]) for c in mr.info["first"]["corners"])
-    loop = mr.second.boundary[mr.second.boundary < len(mr.second.vertex_map)]
-    ids = mr.second.vertex_map[loop]
-    known = np.isfinite(pair.truth[ids, 0])
-    tree = cKDTree(pair.truth[ids[known]])
-    second = tuple(int(ids[known][tree.query(pair.first[0][c])[1]]) for c in first)
-    return first, second
-
-
 def disk_params(disk, params: np.ndarray) -> np.ndarray:
     """Material coordinates of every vertex of a cleaned disk (a hole-filling vertex takes its nearest one's)."""
     k = len(disk.vertex_map)
@@ -373,7 +343,8 @@ def disk_params(disk, params: np.ndarray) -> np.ndarray:
 
 def energies(pair: deform.Pair, mr: MeshRegistration) -> dict:
     """E (each at its best rotation) at meshreg's h, at h = the symmetry of the square it chose (the
-    parametrization alone) and at the true map h_true, on meshreg's grids: h_true sends each node of the first's square to the second's uv of the same material point."""
+    parametrization alone) and at the true map h_true, on meshreg's grids: h_true sends each node of the first's
+    square to the second's uv of the same material point."""
     g1, g2 = mr.grids
     objective = Objective(g1, g2)
     nodes = np.stack(np.meshgrid(g1.r, g1.t, indexing="ij"), axis=-1).reshape(-1, 2)
@@ -400,17 +371,14 @@ def energies(pair: deform.Pair, mr: MeshRegistration) -> dict:
 def oracle_param(pair: deform.Pair, mr: MeshRegistration) -> Outcome:
     """The parametrization alone under the symmetry of the square that is closest to the truth (an oracle)."""
     n2 = len(pair.second[0])
-    uv2 = mr.second.to_input(mr.uv2, n2, [np.nan, np.nan])
-    best = min(
-        ((np.median(pair.errors(p := on_first(mr, unsymmetric(k, uv2)))), k, p) for k in range(8)),
-        key=lambda x: x[0],
-    )
-    return Outcome(best[2], float("nan"), f"symmetry {best[1]} (oracle)")
+    tried = [deform.parametrization_points(mr, n2, k) for k in range(8)]
+    k = int(np.argmin([np.median(pair.errors(p)) for p in tried]))
+    return Outcome(tried[k], float("nan"), f"symmetry {k} (oracle)")
 
 
 def diagnose(pair: deform.Pair, mr: MeshRegistration, rows: list) -> list[str]:
     """Rows telling where meshreg's error comes from (corners, the symmetry, the optimization) and lines of E."""
-    c1, c2 = true_corners(pair, mr)
+    c1, c2 = deform.material_corners(pair, mr)
     rows.append(row(pair, "param, best symmetry", oracle_param(pair, mr)))
     found, baseline, _ = run_meshreg(pair, Options(symmetries=False))
     rows += [row(pair, "meshreg, symmetries=False", found), row(pair, "param, symmetries=False", baseline)]

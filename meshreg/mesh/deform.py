@@ -18,6 +18,10 @@ Kinds (each a function returning a :class:`Pair`):
 - :func:`scan_pair`: crops of a real range scan (pymeshlab's face000), optionally offset from each other and
   bent.
 
+To score a registration: :func:`matched_points` (meshreg's answer for each vertex of the second mesh, a point on
+the first) and :func:`parametrization_points` (the parametrization alone, h = a symmetry of the square), then
+:meth:`Pair.errors`.
+
 Pure numpy/scipy; the real scan needs pymeshlab (:func:`meshreg.mesh.samples.face_scan_path`).
 """
 
@@ -32,11 +36,12 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
+from ..search import symmetry_map
 from .samples import face_scan_crop, random_disk_mesh, remeshed_range_scan, terrain_function
 from .topology import triangle_areas
 
 INSIDE_TOL = 1e-9  # a point whose smallest barycentric coordinate is above -INSIDE_TOL lies in the triangle
-LOCATE_CANDIDATES = (8, 64)  # triangles tried per point (nearest centroids), then again for the points missed
+LOCATE_CANDIDATES = (8, 64, 512)  # triangles tried per point (nearest centroids), more for the points missed
 SECOND_ROTATION = Rotation.from_euler("xyz", [30, -20, 75], degrees=True).as_matrix()
 PARTIAL_ROTATION = Rotation.from_euler("zyx", [-50, 25, 10], degrees=True).as_matrix()
 
@@ -274,8 +279,9 @@ def sheet_pair(
 ) -> Pair:
     """Two random triangulations of a sheet ``surface`` ((u, v) in [0, 1]^2 -> (n, 3), default
     :func:`relief_sheet`): the first covers the square, the second the rectangle ``region`` = (u0, u1, v0, v1)
-    with its vertices on the first mesh (the same piecewise-linear surface), deformed by ``deform`` (points (n, 3) in the sheet's own frame -> (n, 3)), then rotated, scaled and shifted.
-    The pair is partial when ``region`` is not the whole square."""
+    with its vertices on the first mesh (the same piecewise-linear surface), deformed by ``deform`` (points
+    (n, 3) in the sheet's own frame -> (n, 3)), then rotated, scaled and shifted. The pair is partial when
+    ``region`` is not the whole square."""
     surface = surface or relief_sheet()
     u0, u1, v0, v1 = region
     if not (0 <= u0 < u1 <= 1 and 0 <= v0 < v1 <= 1):
@@ -394,3 +400,46 @@ def scan_pair(
         seed=seed,
         info=info,
     )
+
+
+def first_points(mr, uv: np.ndarray) -> np.ndarray:
+    """Points (k, 3) of a :class:`~meshreg.mesh.correspond.MeshRegistration`'s first mesh at points uv (k, 2) of
+    its square (NaN rows stay NaN)."""
+    out = np.full((len(uv), 3), np.nan)
+    ok = np.isfinite(uv[:, 0])
+    face, bary, _ = locate(mr.uv1, mr.first.faces, uv[ok])
+    out[ok] = interpolate(mr.first.vertices, mr.first.faces, face, bary)
+    return out
+
+
+def matched_points(mr, n_second: int) -> np.ndarray:
+    """For each of the ``n_second`` input vertices of the second mesh, the point of the first mesh that the
+    registration matches it with (n_second, 3); NaN for vertices that cleanup dropped."""
+    return first_points(mr, mr.second.to_input(mr.matched_uv2, n_second, [np.nan, np.nan]))
+
+
+def unsymmetric(k: int, uv: np.ndarray) -> np.ndarray:
+    """sigma_k^-1 (uv): the first's uv (n, 2) that h = sigma_k matches with the second's uv."""
+    probe = np.array([[0.1, 0.2], [0.7, 0.4]])
+    inverse = next(j for j in range(8) if np.allclose(symmetry_map(j, symmetry_map(k, probe)), probe))
+    return symmetry_map(inverse, uv)
+
+
+def parametrization_points(mr, n_second: int, symmetry: int | None = None) -> np.ndarray:
+    """The parametrization alone, no optimization: for each input vertex of the second mesh, the point of the
+    first with the same uv up to the symmetry of the square (h = sigma; default the registration's own
+    ``result.symmetry``), shape (n_second, 3)."""
+    k = mr.result.symmetry if symmetry is None else symmetry
+    return first_points(mr, unsymmetric(k, mr.second.to_input(mr.uv2, n_second, [np.nan, np.nan])))
+
+
+def material_corners(pair: Pair, mr) -> tuple[tuple, tuple]:
+    """Input vertex ids of the first's corners as meshreg chose them, and of the second's boundary vertices
+    whose true points are nearest to those corners."""
+    first = tuple(int(mr.first.vertex_map[c]) for c in mr.info["first"]["corners"])
+    loop = mr.second.boundary[mr.second.boundary < len(mr.second.vertex_map)]
+    ids = mr.second.vertex_map[loop]
+    known = np.isfinite(pair.truth[ids, 0])
+    tree = cKDTree(pair.truth[ids[known]])
+    second = tuple(int(ids[known][tree.query(pair.first[0][c])[1]]) for c in first)
+    return first, second
