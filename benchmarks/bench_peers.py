@@ -442,13 +442,14 @@ def main(argv=None):
     for name in args.pairs:
         pair = builders[name]()
         notes.append(
-            f"{name}: {len(pair.first[0])} and {len(pair.second[0])} vertices, overlap {pair.overlap:.3f}, "
+            f"{name}: {len(pair.first[0])} and {len(pair.second[0])} vertices, overlap {pair.overlap:.3f}"
+            f"{' (partial)' if pair.partial else ''}, "
             f"largest edge-length ratio of the deformation {pair.info['edge_ratio']:.3g}"
         )
         if {"meshreg", "param"} & set(args.tools) or args.diagnose:
             found, baseline, mr = run_meshreg(pair, Options())
             rows += [row(pair, t, o) for t, o in (("meshreg", found), ("param", baseline)) if t in args.tools]
-            if args.diagnose and pair.overlap > 0.999:
+            if args.diagnose and not pair.partial:
                 notes += diagnose(pair, mr, rows)
         fr = frames(pair) if peers else None
         for tool in peers:

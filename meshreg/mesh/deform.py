@@ -65,6 +65,8 @@ class Pair:
     unit : float
         Length that errors are measured in: sqrt of the area of the first mesh for full-overlap pairs, of the
         second's material region (in the first's frame) for partial ones.
+    partial : bool
+        Whether the second covers only part of the first (by construction: a crop, not holes or a ragged rim).
     same_scale : bool
         Whether the second is at the first's scale (partial pairs: two scans of one object); else it is scaled.
     first_params, second_params : ndarray, shapes (n1, 2), (n2, 2)
@@ -80,6 +82,7 @@ class Pair:
     covered: np.ndarray
     overlap: float
     unit: float
+    partial: bool
     same_scale: bool
     first_params: np.ndarray
     second_params: np.ndarray
@@ -257,6 +260,7 @@ def _assemble(
         covered,
         overlap,
         float(unit),
+        bool(partial),
         bool(partial and scale == 1.0),
         first_params,
         second_params,
@@ -402,14 +406,20 @@ def scan_pair(
     )
 
 
+def surface_points(disk, disk_uv: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Points (k, 3) of a parametrized disk mesh (its vertices' uv (n, 2)) at points uv (k, 2) of its square (NaN
+    rows stay NaN)."""
+    out = np.full((len(uv), 3), np.nan)
+    ok = np.isfinite(uv[:, 0])
+    face, bary, _ = locate(disk_uv, disk.faces, uv[ok])
+    out[ok] = interpolate(disk.vertices, disk.faces, face, bary)
+    return out
+
+
 def first_points(mr, uv: np.ndarray) -> np.ndarray:
     """Points (k, 3) of a :class:`~meshreg.mesh.correspond.MeshRegistration`'s first mesh at points uv (k, 2) of
     its square (NaN rows stay NaN)."""
-    out = np.full((len(uv), 3), np.nan)
-    ok = np.isfinite(uv[:, 0])
-    face, bary, _ = locate(mr.uv1, mr.first.faces, uv[ok])
-    out[ok] = interpolate(mr.first.vertices, mr.first.faces, face, bary)
-    return out
+    return surface_points(mr.first, mr.uv1, uv)
 
 
 def matched_points(mr, n_second: int) -> np.ndarray:
