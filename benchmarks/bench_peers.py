@@ -1,9 +1,9 @@
 """Side by side: meshreg and the tools a user would pick instead, on mesh pairs with a known material map.
 
-    python benchmarks/bench_peers.py                       # every pair, every tool (about an hour on 2 cores)
+    python benchmarks/bench_peers.py                       # every pair and tool: 24 min, 9 min of CPU
     python benchmarks/bench_peers.py --quick               # small meshes, a few minutes
     python benchmarks/bench_peers.py --pairs roll-90 fold-90 --tools meshreg param open3d
-    python benchmarks/bench_peers.py --diagnose --pairs face-bend-72 fold-90 roll-90 roll-180
+    python benchmarks/bench_peers.py --diagnose --tools meshreg param --pairs fold-90 roll-90 roll-180
     python benchmarks/bench_peers.py --list
 
 Pairs (:mod:`meshreg.mesh.deform`): each gives, for every vertex of the second mesh, its true corresponding point on
@@ -16,7 +16,8 @@ Tools, all on the same meshes:
 - ``meshreg``: the command line's default (``register_meshes(a, b, Options())``), each vertex of the second mapped
   through the registration to the first's square and onto the first mesh; E is printed beside it.
 - ``param``: the parametrization alone, no optimization: the two harmonic maps to the square with the corners
-  meshreg chose, corresponding points sharing uv (h = identity); seconds are those of the mesh preparation.
+  meshreg chose, corresponding points sharing uv up to the symmetry of the square meshreg chose (h = sigma; the
+  boundary loops start at arbitrary corners, so h = identity alone means nothing); seconds: the mesh preparation.
 - ``open3d``: FPFH features + RANSAC, then point-to-plane ICP (rigid, global: no start needed); voxel 0.03 or the
   meshes' median edge length if larger (features within 5 voxels, normals from the triangles).
 - ``icp``: ``trimesh.registration.icp`` from the 24 rotations of the cube (600 vertices onto the first's
@@ -35,9 +36,13 @@ vertex by inverse-distance weighting of the 8 nearest subsample displacements. A
 each vertex of the second its closest point on the first (that projection is not timed). A peer that is not
 installed (``pip install 'meshreg[bench]'``) is skipped with a line that says so.
 
-``--diagnose`` adds, on full-overlap pairs, meshreg without the square's symmetries, meshreg and the
-parametrization with the true corners (the first's corners as meshreg chose them, the second's at the boundary
-vertices whose true points are nearest to those), and E at meshreg's answer, at h = identity and at the true map.
+``--diagnose`` adds, on full-overlap pairs: the parametrization under the symmetry closest to the truth (an
+oracle); meshreg and the parametrization without the square's symmetries; both with the true corners (the first's
+corners as meshreg chose them, the second's at the boundary vertices whose true points are nearest to those,
+:func:`meshreg.mesh.deform.material_corners`), the parametrization also with the oracle symmetry; and E at
+meshreg's answer, at h = the symmetry it chose and at the true map (each at its best rotation).
+
+Timings are wall-clock seconds on a shared machine: compare them within one run, not across runs.
 """
 
 from __future__ import annotations
