@@ -1,7 +1,7 @@
 """Side by side: meshreg and the tools a user would pick instead, on mesh pairs with a known material map.
 
     python benchmarks/bench_peers.py                       # every pair and tool: 24 min, 9 min of CPU
-    python benchmarks/bench_peers.py --quick               # small meshes, a few minutes
+    python benchmarks/bench_peers.py --quick               # small meshes: 9 min, 5 min of CPU
     python benchmarks/bench_peers.py --pairs roll-90 fold-90 --tools meshreg param open3d
     python benchmarks/bench_peers.py --diagnose --tools meshreg param --pairs fold-90 roll-90 roll-180
     python benchmarks/bench_peers.py --list
@@ -428,7 +428,7 @@ def main(argv=None):
     builders_all = pair_builders(False)
     parser.add_argument("--pairs", nargs="+", choices=list(builders_all), default=list(builders_all))
     parser.add_argument("--tools", nargs="+", choices=TOOLS, default=list(TOOLS))
-    parser.add_argument("--quick", action="store_true", help="small meshes (a few minutes)")
+    parser.add_argument("--quick", action="store_true", help="small meshes (about 5 min of CPU)")
     parser.add_argument("--diagnose", action="store_true", help="meshreg without symmetries, with true corners; E")
     parser.add_argument("--list", action="store_true", help="list the pairs and how they are made, then stop")
     args = parser.parse_args(argv)
