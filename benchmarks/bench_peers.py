@@ -1,0 +1,482 @@
+"""Side by side: meshreg and the tools a user would pick instead, on mesh pairs with a known material map.
+
+    python benchmarks/bench_peers.py                       # every pair and tool: 24 min, 9 min of CPU
+    python benchmarks/bench_peers.py --quick               # small meshes: 9 min, 5 min of CPU
+    python benchmarks/bench_peers.py --pairs roll-90 fold-90 --tools meshreg param open3d
+    python benchmarks/bench_peers.py --diagnose --tools meshreg param --pairs fold-90 roll-90 roll-180
+    python benchmarks/bench_peers.py --list
+
+Pairs (:mod:`meshreg.mesh.deform`): each gives, for every vertex of the second mesh, its true corresponding point on
+the first. Every tool predicts that point; the error is the distance from the predicted to the true point in units
+of sqrt(area) (of the first mesh; of the second's region for partial pairs), median and 90th percentile over the
+second's vertices that have a true point (those over the first: the overlap, for partial pairs).
+
+Tools, all on the same meshes:
+
+- ``meshreg``: the command line's default (``register_meshes(a, b, Options())``), each vertex of the second mapped
+  through the registration to the first's square and onto the first mesh; E is printed beside it.
+- ``param``: the parametrization alone, no optimization: the two harmonic maps to the square with the corners
+  meshreg chose, corresponding points sharing uv up to the symmetry of the square meshreg chose (h = sigma; the
+  boundary loops start at arbitrary corners, so h = identity alone means nothing); seconds: the mesh preparation.
+- ``open3d``: FPFH features + RANSAC, then point-to-plane ICP (rigid, global: no start needed); voxel 0.03 or the
+  meshes' median edge length if larger (features within 5 voxels, normals from the triangles).
+- ``icp``: ``trimesh.registration.icp`` from the 24 rotations of the cube (600 vertices onto the first's
+  vertices), the start with the lowest own cost refined on every vertex against the first's triangles (rigid).
+- ``nricp-amberg``, ``nricp-sumner``: trimesh's non-rigid ICP of the second mesh onto the first, from the ``icp``
+  pose (its seconds included).
+- ``cpd``: pycpd rigid CPD (with scale) from the 24 cube rotations (300 onto 500 points, 50 iterations), the
+  start with the lowest own objective refined (600 onto 1000 points), then deformable CPD from its sigma^2 (1000
+  points, kernel width beta = 0.5, alpha = 2: unit-area data).
+- ``bcpd``: probreg's BCPD (rigid + non-rigid, lambda = 20) on 800 points, 100 iterations, from the rigid CPD
+  pose (its seconds included).
+
+Fair help for the peers: both meshes centred (area centroid) and scaled to unit area (partial pairs, which are at
+one scale: both by the same factor, the second to unit area); point-set tools deform a subsample, carried to every
+vertex by inverse-distance weighting of the 8 nearest subsample displacements. A point-set or rigid result gives
+each vertex of the second its closest point on the first (that projection is not timed). A peer that is not
+installed (``pip install 'meshreg[bench]'``) is skipped with a line that says so.
+
+``--diagnose`` adds, on full-overlap pairs: the parametrization under the symmetry closest to the truth (an
+oracle); meshreg and the parametrization without the square's symmetries; both with the true corners (the first's
+corners as meshreg chose them, the second's at the boundary vertices whose true points are nearest to those,
+:func:`meshreg.mesh.deform.material_corners`), the parametrization also with the oracle symmetry; and E at
+meshreg's answer, at h = the symmetry it chose and at the true map (each at its best rotation).
+
+Timings are wall-clock seconds on a shared machine: compare them within one run, not across runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import NearestNDInterpolator
+from scipy.spatial import cKDTree
+
+from meshreg import Options
+from meshreg.mesh import deform
+from meshreg.mesh.correspond import MeshRegistration, register_meshes
+from meshreg.mesh.topology import triangle_areas
+from meshreg.objective import Objective
+from meshreg.rotation import kabsch
+from meshreg.search import cube_rotations, symmetry_map
+
+SEED = 0
+ICP_POINTS = 600
+CPD_START_POINTS, CPD_RIGID_POINTS = (300, 500), (600, 1000)  # (moving, fixed) for the 24 starts, for the best
+CPD_POINTS = 1000
+CPD_BETA, CPD_ALPHA = 0.5, 2.0
+BCPD_POINTS = 800
+BCPD_ITERATIONS, BCPD_LAMBDA = 100, 20.0
+CARRY_NEIGHBOURS = 8
+VOXEL = 0.03  # Open3D's voxel (unit-area data), at least the meshes' median edge length
+
+
+def pair_builders(quick: bool) -> dict:
+    """Name -> function making the pair; ``quick``: small meshes (sheets of 600/900 vertices, 30 mm scan crops)."""
+    n1, n2 = (600, 900) if quick else (2500, 3500)
+    scan = {"radius": 30.0, "n_second": 2500} if quick else {"radius": 45.0, "n_second": 8000}
+    sheet = {"n_first": n1, "n_second": n2}
+    folded = {"start": 0.45, "width": 0.1, "surface": deform.relief_sheet(0.5)}
+    return {
+        "remeshed": lambda: deform.remeshed_pair("remeshed", **sheet),
+        "face-bend-72": lambda: deform.scan_pair("face-bend-72", bend_angle=72.0, **scan),
+        "fold-90": lambda: deform.bent_pair("fold-90", 90.0, **folded, **sheet),
+        "roll-90": lambda: deform.bent_pair("roll-90", 90.0, **sheet),
+        "roll-180": lambda: deform.bent_pair("roll-180", 180.0, **sheet),
+        "stretch": lambda: deform.stretched_pair("stretch", 0.5, **sheet),
+        "sheet-90%": lambda: deform.partial_pair("sheet-90%", deform.centred_region(0.9), **sheet),
+        "sheet-81%": lambda: deform.partial_pair("sheet-81%", deform.centred_region(0.81), **sheet),
+        "corner-64%": lambda: deform.partial_pair("corner-64%", (0.0, 0.8, 0.0, 0.8), **sheet),
+        "strip-60%": lambda: deform.partial_pair("strip-60%", (0.0, 1.0, 0.2, 0.8), **sheet),
+        "face-crops-5mm": lambda: deform.scan_pair("face-crops-5mm", offset=5.0, **scan),
+        "face-crops-12mm": lambda: deform.scan_pair("face-crops-12mm", offset=12.0, **scan),
+        "face-crops-5mm-bent": lambda: deform.scan_pair("face-crops-5mm-bent", offset=5.0, bend_angle=72.0, **scan),
+    }
+
+
+@dataclass
+class Outcome:
+    """One tool's prediction on one pair: points (n2, 3) on the first mesh (NaN: none), seconds, a note."""
+
+    points: np.ndarray | None
+    seconds: float
+    note: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+# ---- meshreg and the parametrization alone
+
+
+def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, MeshRegistration]:
+    """meshreg's prediction and the parametrization-alone baseline from the same run."""
+    n2 = len(pair.second[0])
+    t0 = time.perf_counter()
+    mr = register_meshes(pair.first, pair.second, options)
+    seconds = time.perf_counter() - t0
+    energy = mr.result.energy
+    found = Outcome(deform.matched_points(mr, n2), seconds, f"E = {energy:.3g}", {"E": energy})
+    note = f"h = symmetry {mr.result.symmetry} of the square (meshreg's)"
+    baseline = Outcome(deform.parametrization_points(mr, n2), seconds - mr.result.timings["total"], note)
+    return found, baseline, mr
+
+
+# ---- the peers' common frame
+
+
+@dataclass
+class Frames:
+    """Both meshes centred and scaled (the first to unit area; the second too, or by the first's factor when the
+    pair is at one scale), the first as a trimesh for closest points."""
+
+    a: np.ndarray
+    b: np.ndarray
+    faces_a: np.ndarray
+    faces_b: np.ndarray
+    centre: np.ndarray
+    factor: float
+    mesh_a: object
+    poses: dict = field(default_factory=dict)
+    borrowed: float = 0.0
+
+    def pose(self, key: str, make):
+        """A start shared by several peers (made once): its seconds are added to every peer that uses it."""
+        if key not in self.poses:
+            t0 = time.perf_counter()
+            self.poses[key] = (make(self), time.perf_counter() - t0)
+        else:
+            self.borrowed += self.poses[key][1]
+        return self.poses[key][0]
+
+    def to_first(self, moved_b: np.ndarray) -> np.ndarray:
+        """Closest points on the first mesh (original frame) to the second's vertices moved into its frame."""
+        closest, _, _ = self.mesh_a.nearest.on_surface(moved_b)
+        return closest / self.factor + self.centre
+
+
+def _centroid_area(v, f):
+    area = triangle_areas(v, f)
+    return area @ v[f].mean(axis=1) / area.sum(), area.sum()
+
+
+def frames(pair: deform.Pair) -> Frames:
+    import trimesh
+
+    (va, fa), (vb, fb) = pair.first, pair.second
+    ca, area_a = _centroid_area(va, fa)
+    cb, area_b = _centroid_area(vb, fb)
+    fac_b = 1 / np.sqrt(area_b)
+    fac_a = fac_b if pair.same_scale else 1 / np.sqrt(area_a)
+    a, b = (va - ca) * fac_a, (vb - cb) * fac_b
+    return Frames(a, b, fa, fb, ca, fac_a, trimesh.Trimesh(a, fa, process=False))
+
+
+def subsample(n: int, k: int, salt: int = 0) -> np.ndarray:
+    return np.sort(np.random.default_rng(SEED + salt).choice(n, min(n, k), replace=False))
+
+
+def carry(points: np.ndarray, sub: np.ndarray, moved_sub: np.ndarray) -> np.ndarray:
+    """Every point moved by the inverse-distance-weighted displacement of its nearest subsample points."""
+    k = min(CARRY_NEIGHBOURS, len(sub))
+    d, idx = cKDTree(points[sub]).query(points, k=k)
+    d, idx = d.reshape(len(points), k), idx.reshape(len(points), k)
+    w = 1 / np.maximum(d, 1e-12) ** 2
+    w /= w.sum(axis=1, keepdims=True)
+    return points + np.einsum("nk,nkd->nd", w, (moved_sub - points[sub])[idx])
+
+
+def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+# ---- the peers (each returns the second's vertices moved into the first's frame)
+
+
+def peer_open3d(fr: Frames) -> np.ndarray:
+    import open3d as o3d
+
+    o3d.utility.random.seed(SEED)
+    e = np.concatenate([fr.faces_b[:, [0, 1]], fr.faces_a[:, [0, 1]] + len(fr.b)])
+    points = np.vstack([fr.b, fr.a])
+    voxel = max(VOXEL, float(np.median(np.linalg.norm(points[e[:, 0]] - points[e[:, 1]], axis=1))))
+    reg = o3d.pipelines.registration
+
+    def cloud(points, faces):
+        import trimesh
+
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        normals = np.array(trimesh.Trimesh(points, faces, process=False).vertex_normals)
+        pcd.normals = o3d.utility.Vector3dVector(normals)
+        down = pcd.voxel_down_sample(voxel)
+        down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+        fpfh = reg.compute_fpfh_feature(down, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+        return pcd, down, fpfh
+
+    a, a_down, a_fpfh = cloud(fr.a, fr.faces_a)
+    b, b_down, b_fpfh = cloud(fr.b, fr.faces_b)
+    ransac = reg.registration_ransac_based_on_feature_matching(
+        b_down,
+        a_down,
+        b_fpfh,
+        a_fpfh,
+        True,
+        1.5 * voxel,
+        reg.TransformationEstimationPointToPoint(False),
+        3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+        reg.RANSACConvergenceCriteria(100000, 0.999),
+    )
+    icp = reg.registration_icp(b, a, voxel, ransac.transformation, reg.TransformationEstimationPointToPlane())
+    icp = reg.registration_icp(b, a, 0.25 * voxel, icp.transformation, reg.TransformationEstimationPointToPlane())
+    return apply(np.asarray(icp.transformation), fr.b)
+
+
+def _icp_pose(fr: Frames) -> np.ndarray:
+    """trimesh ICP from the 24 cube rotations (a subsample of the second onto the first's vertices), the start
+    with the lowest own cost refined on every vertex against the first's triangles."""
+    import trimesh
+
+    sub = fr.b[subsample(len(fr.b), ICP_POINTS)]
+    best = (np.inf, None)
+    for rotation in cube_rotations():
+        start = np.eye(4)
+        start[:3, :3] = rotation
+        matrix, _, cost = trimesh.registration.icp(sub, fr.a, initial=start, max_iterations=30, scale=False)
+        best = min(best, (cost, matrix), key=lambda x: x[0])
+    matrix, _, _ = trimesh.registration.icp(fr.b, fr.mesh_a, initial=best[1], max_iterations=50, scale=False)
+    return matrix
+
+
+def peer_icp(fr: Frames) -> np.ndarray:
+    return apply(fr.pose("icp", _icp_pose), fr.b)
+
+
+def _nricp(fr: Frames, method: str) -> np.ndarray:
+    import trimesh
+
+    source = trimesh.Trimesh(apply(fr.pose("icp", _icp_pose), fr.b), fr.faces_b, process=False)
+    return np.asarray(getattr(trimesh.registration, method)(source, fr.mesh_a))
+
+
+def peer_nricp_amberg(fr: Frames) -> np.ndarray:
+    return _nricp(fr, "nricp_amberg")
+
+
+def peer_nricp_sumner(fr: Frames) -> np.ndarray:
+    return _nricp(fr, "nricp_sumner")
+
+
+def _cpd_rigid(fr: Frames) -> tuple[np.ndarray, float]:
+    """Rigid CPD (with scale) of the second onto the first from the 24 cube rotations on small subsamples, the
+    start with the lowest own objective q refined on larger ones: the second's vertices moved, and CPD's sigma^2."""
+    from pycpd import RigidRegistration
+
+    def run(rotation, sizes, iterations):
+        moving, fixed = fr.b[subsample(len(fr.b), sizes[0])], fr.a[subsample(len(fr.a), sizes[1], 1)]
+        reg = RigidRegistration(X=fixed, Y=moving @ rotation.T, max_iterations=iterations, tolerance=1e-6)
+        _, (s, r, t) = reg.register()
+        return reg.q, s * r.T @ rotation, t, reg.sigma2  # pycpd moves rows y to s y r + t
+
+    start = min((run(rotation, CPD_START_POINTS, 50) for rotation in cube_rotations()), key=lambda x: x[0])
+    _, linear, shift, sigma2 = run(start[1], CPD_RIGID_POINTS, 100)
+    return fr.b @ linear.T + shift, sigma2
+
+
+def peer_cpd(fr: Frames) -> np.ndarray:
+    from pycpd import DeformableRegistration
+
+    rigid, sigma2 = fr.pose("cpd-rigid", _cpd_rigid)
+    sub = subsample(len(fr.b), CPD_POINTS, 2)
+    target = fr.a[subsample(len(fr.a), CPD_POINTS, 3)]
+    reg = DeformableRegistration(
+        X=target, Y=rigid[sub], alpha=CPD_ALPHA, beta=CPD_BETA, sigma2=sigma2, max_iterations=150, tolerance=1e-5
+    )
+    moved_sub, _ = reg.register()
+    return carry(rigid, sub, moved_sub)
+
+
+def peer_bcpd(fr: Frames) -> np.ndarray:
+    from probreg import bcpd
+
+    rigid, _ = fr.pose("cpd-rigid", _cpd_rigid)
+    sub = subsample(len(fr.b), BCPD_POINTS, 4)
+    target = fr.a[subsample(len(fr.a), BCPD_POINTS, 5)]
+    tf = bcpd.registration_bcpd(rigid[sub], target, maxiter=BCPD_ITERATIONS, lmd=BCPD_LAMBDA)
+    return carry(rigid, sub, tf.transform(rigid[sub]))
+
+
+PEERS = {
+    "open3d": (peer_open3d, "open3d"),
+    "icp": (peer_icp, "trimesh"),
+    "nricp-amberg": (peer_nricp_amberg, "trimesh"),
+    "nricp-sumner": (peer_nricp_sumner, "trimesh"),
+    "cpd": (peer_cpd, "pycpd"),
+    "bcpd": (peer_bcpd, "probreg"),
+}
+TOOLS = ("meshreg", "param", *PEERS)
+
+
+def missing(module: str) -> str | None:
+    """Why a peer cannot run (its module, or rtree for trimesh's closest points), or None."""
+    needs = [module, "rtree"] if module == "trimesh" else [module]
+    for name in needs:
+        try:
+            __import__(name)
+        except ImportError:
+            return f"{name} is not installed (pip install 'meshreg[bench]')"
+    return None
+
+
+# ---- diagnostics
+
+
+def disk_params(disk, params: np.ndarray) -> np.ndarray:
+    """Material coordinates of every vertex of a cleaned disk (a hole-filling vertex takes its nearest one's)."""
+    k = len(disk.vertex_map)
+    out = np.empty((len(disk.vertices), 2))
+    out[:k] = params[disk.vertex_map]
+    if len(disk.vertices) > k:
+        out[k:] = params[disk.vertex_map[cKDTree(disk.vertices[:k]).query(disk.vertices[k:])[1]]]
+    return out
+
+
+def energies(pair: deform.Pair, mr: MeshRegistration) -> dict:
+    """E (each at its best rotation) at meshreg's h, at h = the symmetry of the square it chose (the
+    parametrization alone) and at the true map h_true, on meshreg's grids: h_true sends each node of the first's
+    square to the second's uv of the same material point."""
+    g1, g2 = mr.grids
+    objective = Objective(g1, g2)
+    nodes = np.stack(np.meshgrid(g1.r, g1.t, indexing="ij"), axis=-1).reshape(-1, 2)
+    face, bary, _ = deform.locate(mr.uv1, mr.first.faces, nodes)
+    material = deform.interpolate(disk_params(mr.first, pair.first_params), mr.first.faces, face, bary)
+    p2 = disk_params(mr.second, pair.second_params)
+    face, bary, inside = deform.locate(p2, mr.second.faces, material)
+    h_true = deform.interpolate(mr.uv2, mr.second.faces, face, bary)
+    if not inside.all():  # nodes off the second (holes): nearest known value
+        h_true[~inside] = NearestNDInterpolator(nodes[inside], h_true[inside])(nodes[~inside])
+    h_true = np.clip(h_true.reshape(len(g1.r), len(g1.t), 2), 0, 1)
+
+    def at(h):
+        return objective.energy(kabsch(objective.best_rotation_covariance(h)), h)
+
+    return {
+        "E found": mr.result.energy,
+        "E found (recomputed)": at(mr.result.h),
+        f"E at h = symmetry {mr.result.symmetry}": at(symmetry_map(mr.result.symmetry, objective.identity)),
+        "E true map": at(h_true),
+    }
+
+
+def oracle_param(pair: deform.Pair, mr: MeshRegistration) -> Outcome:
+    """The parametrization alone under the symmetry of the square that is closest to the truth (an oracle)."""
+    n2 = len(pair.second[0])
+    tried = [deform.parametrization_points(mr, n2, k) for k in range(8)]
+    k = int(np.argmin([np.median(pair.errors(p)) for p in tried]))
+    return Outcome(tried[k], float("nan"), f"symmetry {k} (oracle)")
+
+
+def diagnose(pair: deform.Pair, mr: MeshRegistration, rows: list) -> list[str]:
+    """Rows telling where meshreg's error comes from (corners, the symmetry, the optimization) and lines of E."""
+    c1, c2 = deform.material_corners(pair, mr)
+    rows.append(row(pair, "param, best symmetry", oracle_param(pair, mr)))
+    found, baseline, _ = run_meshreg(pair, Options(symmetries=False))
+    rows += [row(pair, "meshreg, symmetries=False", found), row(pair, "param, symmetries=False", baseline)]
+    found, baseline, run = run_meshreg(pair, Options(corners1=c1, corners2=c2))
+    rows += [row(pair, "meshreg, true corners", found), row(pair, "param, true corners", baseline)]
+    rows.append(row(pair, "param, true corners, best symmetry", oracle_param(pair, run)))
+    return [
+        f"{pair.name}, meshreg's corners: {fmt_energies(energies(pair, mr))}",
+        f"{pair.name}, true corners: {fmt_energies(energies(pair, run))}",
+    ]
+
+
+def fmt_energies(e: dict) -> str:
+    return ", ".join(f"{k} = {v:.3g}" for k, v in e.items())
+
+
+# ---- the table
+
+
+def row(pair: deform.Pair, tool: str, outcome: Outcome) -> tuple:
+    if outcome.points is None:
+        return (pair.name, tool, "", "", "", outcome.note)
+    err = pair.errors(outcome.points)
+    med, p90 = np.percentile(err, [50, 90])
+    seconds = "" if np.isnan(outcome.seconds) else f"{outcome.seconds:.1f}"
+    return (pair.name, tool, f"{med:.4f}", f"{p90:.4f}", seconds, outcome.note)
+
+
+def machine_line() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as info:
+            cpu = next(line.split(":", 1)[1].strip() for line in info if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    today = datetime.date.today().isoformat()
+    return f"{today}, {cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    builders_all = pair_builders(False)
+    parser.add_argument("--pairs", nargs="+", choices=list(builders_all), default=list(builders_all))
+    parser.add_argument("--tools", nargs="+", choices=TOOLS, default=list(TOOLS))
+    parser.add_argument("--quick", action="store_true", help="small meshes (about 5 min of CPU)")
+    parser.add_argument("--diagnose", action="store_true", help="meshreg without symmetries, with true corners; E")
+    parser.add_argument("--list", action="store_true", help="list the pairs and how they are made, then stop")
+    args = parser.parse_args(argv)
+    builders = pair_builders(args.quick)
+    print(f"# bench_peers{' --quick' if args.quick else ''}: {machine_line()}")
+    if args.list:
+        for name in args.pairs:
+            p = builders[name]()
+            print(f"- {name}: {p.info}, overlap {p.overlap:.3f}, same scale {p.same_scale}")
+        return
+    for tool in args.tools:
+        if tool in PEERS and (why := missing(PEERS[tool][1])):
+            print(f"{tool}: skipped, {why}")
+    peers = [t for t in args.tools if t in PEERS and not missing(PEERS[t][1])]
+    rows, notes = [], []
+    for name in args.pairs:
+        pair = builders[name]()
+        notes.append(
+            f"{name}: {len(pair.first[0])} and {len(pair.second[0])} vertices, overlap {pair.overlap:.3f}"
+            f"{' (partial)' if pair.partial else ''}, "
+            f"largest edge-length ratio of the deformation {pair.info['edge_ratio']:.3g}"
+        )
+        if {"meshreg", "param"} & set(args.tools) or args.diagnose:
+            found, baseline, mr = run_meshreg(pair, Options())
+            rows += [row(pair, t, o) for t, o in (("meshreg", found), ("param", baseline)) if t in args.tools]
+            if args.diagnose and not pair.partial:
+                notes += diagnose(pair, mr, rows)
+        fr = frames(pair) if peers else None
+        for tool in peers:
+            t0, fr.borrowed = time.perf_counter(), 0.0
+            try:
+                moved = PEERS[tool][0](fr)
+                seconds = time.perf_counter() - t0 + fr.borrowed
+                outcome = Outcome(fr.to_first(moved), seconds)
+            except Exception as err:  # a peer failing on a pair is a result, not a crash of the benchmark
+                outcome = Outcome(None, time.perf_counter() - t0, f"failed: {type(err).__name__}: {err}"[:100])
+            rows.append(row(pair, tool, outcome))
+        print(f"{name} done", file=sys.stderr, flush=True)
+    print()
+    print("| pair | tool | median | p90 | seconds | note |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print("| " + " | ".join(r) + " |")
+    print()
+    for line in notes:
+        print(f"- {line}")
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()
