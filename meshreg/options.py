@@ -31,6 +31,7 @@ MODES = ("auto", "dp", "gd", "dp+gd")
 SOLVERS = ("gauss-newton", "gradient")
 REFINEMENTS = ("nodes", "none")
 WEIGHTS = ("mean-value", "cotangent")
+OVERLAPS = ("auto", "off")
 MAX_BASIS = 40  # KL beyond this gives 2 (KL + 2 KL^2) > 6000 fields: more than any grid here resolves
 MAX_WINDOW = 10_000
 
@@ -198,6 +199,10 @@ class Options:
     corner_search : int
         Trial corner placements of the second mesh when the boundaries have no four clear corners; 0 turns
         the search off. Default 8.
+    overlap : {"auto", "off"}
+        Meshes: "auto" finds where the two overlap (:mod:`meshreg.mesh.overlap`); when they cover different
+        regions (two scans, two crops), only the common region is registered and vertices outside it get no match.
+        "off" always registers the whole meshes. Default "auto" (a no-op for meshes that cover the same region).
     advanced : Advanced
         The rare numerics.
     """
@@ -219,10 +224,17 @@ class Options:
     corners1: tuple[int, int, int, int] | None = None
     corners2: tuple[int, int, int, int] | None = None
     corner_search: int = 8
+    overlap: str = "auto"
     advanced: Advanced = field(default_factory=Advanced)
 
     def __post_init__(self):
-        for name, allowed in (("mode", MODES), ("solver", SOLVERS), ("refine", REFINEMENTS), ("weights", WEIGHTS)):
+        for name, allowed in (
+            ("mode", MODES),
+            ("solver", SOLVERS),
+            ("refine", REFINEMENTS),
+            ("weights", WEIGHTS),
+            ("overlap", OVERLAPS),
+        ):
             if getattr(self, name) not in allowed:
                 raise InputError(f"unknown {name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
         _integer("window", self.window, 1, MAX_WINDOW)
@@ -371,6 +383,15 @@ FLAGS: tuple[Flag, ...] = (
         nargs=4,
         metavar="ID",
         group="corners",
+    ),
+    Flag(
+        "--overlap",
+        "overlap",
+        "auto: register only where the meshes overlap when they cover different regions; off: always the whole "
+        "meshes (default auto)",
+        str,
+        choices=OVERLAPS,
+        group="meshes",
     ),
     Flag(
         "--corner-search",

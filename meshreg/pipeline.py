@@ -73,6 +73,7 @@ def register(
     corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
     corner_search: int = DEFAULTS.corner_search,
+    overlap: str = DEFAULTS.overlap,
     advanced: Advanced | None = None,
     callback: Progress | None = None,
 ) -> Registration:
@@ -86,8 +87,9 @@ def register(
         differ. Both are scaled to area 1.
     mode, window, basis, solver, refine, search, symmetries, keep_orientation, max_starts, start_basis, smoothing
         How to register: see :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
-    resolution, weights, cleanup, corners1, corners2, corner_search
-        How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
+    resolution, weights, cleanup, corners1, corners2, corner_search, overlap
+        How meshes are prepared (cleanup, map to the square, resampling; registered whole or only where they
+        overlap): see :class:`meshreg.options.Options`.
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
@@ -126,6 +128,7 @@ def register(
         corners1=corners1,
         corners2=corners2,
         corner_search=corner_search,
+        overlap=overlap,
         advanced=advanced or Advanced(),
     )
     return register_with(first, second, options, callback)

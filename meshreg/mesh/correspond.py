@@ -14,6 +14,8 @@ from ..result import Registration
 from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap
+from .overlap import find_overlap
+from .partial import register_overlap
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
 
@@ -81,6 +83,12 @@ def register_meshes(
             raise InputError(f"{mesh.name}: {err}") from None
         disks.append(disk)
         infos[name] = {"cleanup": disk.report}
+    if options.overlap == "auto":
+        found = find_overlap(disks[0], disks[1])
+        if found.regime in ("rigid", "elastic"):
+            n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
+            return register_overlap(disks[0], disks[1], found, n_input, options, infos)
+        infos["overlap"] = found.summary()
     positions, tried = corner_positions(disks, maps, options)
     if tried is not None:
         infos["second"]["corner_search"] = tried
@@ -93,7 +101,7 @@ def register_meshes(
     grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
     result = register_grids(grids[0], grids[1], options, callback)
     sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]
-    result = replace(result, first=sides[0], second=sides[1], info=_json_ready(infos))
+    result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
     return MeshRegistration(
         disks[0],
         disks[1],
@@ -106,12 +114,12 @@ def register_meshes(
     )
 
 
-def _json_ready(info: dict) -> dict:
+def json_ready(info: dict) -> dict:
     """The preparation report with numpy values made plain (it is saved as JSON in result.npz)."""
     if isinstance(info, dict):
-        return {str(k): _json_ready(v) for k, v in info.items()}
+        return {str(k): json_ready(v) for k, v in info.items()}
     if isinstance(info, (list, tuple)):
-        return [_json_ready(v) for v in info]
+        return [json_ready(v) for v in info]
     if isinstance(info, np.ndarray):
         return info.tolist()
     return info.item() if isinstance(info, np.generic) else info
