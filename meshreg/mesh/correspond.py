@@ -14,7 +14,7 @@ from ..result import Registration
 from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap
-from .overlap import find_overlap
+from .overlap import rigid_overlap, warped_overlap
 from .partial import register_overlap
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
@@ -83,12 +83,39 @@ def register_meshes(
             raise InputError(f"{mesh.name}: {err}") from None
         disks.append(disk)
         infos[name] = {"cleanup": disk.report}
-    if options.overlap == "auto":
-        found = find_overlap(disks[0], disks[1])
+    n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
+    if options.overlap == "off":
+        return register_disks(disks, maps, n_input, infos, options, callback)
+    found = rigid_overlap(disks[0], disks[1])
+    if found.regime == "rigid":
+        return register_overlap(disks[0], disks[1], found, n_input, options, infos)
+    whole = register_disks(disks, maps, n_input, infos, options, callback)
+    if found.regime == "deformed":
+        matches = whole.result.first.at_uv(whole.matched_uv2)[0]
+        found = warped_overlap(disks[0], disks[1], found, matches)
         if found.regime in ("rigid", "elastic"):
-            n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
             return register_overlap(disks[0], disks[1], found, n_input, options, infos)
-        infos["overlap"] = found.summary()
+    whole.info["overlap"] = found.summary()
+    return replace(whole, result=replace(whole.result, info=json_ready(whole.info)))
+
+
+def register_disks(
+    disks: list[DiskMesh], maps: list[HarmonicMap], n_input: tuple[int, int], infos: dict, options: Options, callback
+) -> MeshRegistration:
+    """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners,
+    harmonic maps, grids, :func:`meshreg.pipeline.register_grids`.
+
+    Parameters
+    ----------
+    disks : [DiskMesh, DiskMesh]
+    maps : [HarmonicMap, HarmonicMap]
+        Their factorized Laplacians.
+    n_input : (int, int)
+        Vertex counts of the meshes as given.
+    infos : dict
+        The preparation report per mesh ("first", "second"), completed here.
+    """
+    infos = {name: dict(info) for name, info in infos.items()}
     positions, tried = corner_positions(disks, maps, options)
     if tried is not None:
         infos["second"]["corner_search"] = tried
@@ -100,7 +127,7 @@ def register_meshes(
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
     result = register_grids(grids[0], grids[1], options, callback)
-    sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]
+    sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
     return MeshRegistration(
         disks[0],

@@ -28,12 +28,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from ..rotation import kabsch
 from .align import Alignment, align
 from .surface import Surface, transform_points
 from .topology import DiskMesh, prepare_disk, triangle_areas
 from .warp import arap_warp
 
 RIM_EPSILON = 1e-6  # a closest point within this many edge lengths of the rim lies on it
+BAND = 3.0  # signed distances are exact within this many edge lengths of the other's rim
+STATISTICS_SAMPLE = 3000  # vertices farther inside whose distance to the other mesh is measured (RMS, coincidence)
 SNAP = 0.1  # signed distances within this many edge lengths of 0 are set to 0 (no slivers at the cut)
 COINCIDE = 1.0  # vertices within this many edge lengths of the other mesh coincide with it
 COINCIDE_ENOUGH = 0.9  # the overlap is trusted when this fraction of it coincides (area)
@@ -54,7 +57,8 @@ class Side:
     signed : ndarray, shape (n,)
         Per disk vertex, the signed distance to the other mesh's rim (first's units; positive inside).
     distance : ndarray, shape (n,)
-        Per disk vertex, the distance to the other mesh (first's units).
+        Per disk vertex, the distance to the other mesh (first's units); NaN where it was not measured (see
+        :func:`signed_rim_distance`).
     fraction : float
         Fraction of the mesh's area where ``signed`` >= 0 (triangles cut along its zero line).
     """
@@ -70,7 +74,7 @@ class Overlap:
 
     Attributes
     ----------
-    regime : {"full", "rigid", "elastic", "whole"}
+    regime : {"full", "rigid", "elastic", "whole", "deformed"}
     first, second : Side
     alignment : Alignment
         The pose of the second mesh in the first's frame.
@@ -118,13 +122,26 @@ class Overlap:
 def signed_rim_distance(points: np.ndarray, other: Surface) -> tuple[np.ndarray, np.ndarray]:
     """Per point (k, 3): the signed distance to ``other``'s rim (positive: the closest point on ``other`` is
     inside, by its distance to the rim; negative: it is on the rim, by the tangential gap) and the distance to
-    ``other``."""
-    closest, distance, normal = other.closest(points)
+    ``other``.
+
+    Exact (closest points on the triangles) for points whose nearest vertex of ``other`` lies within BAND edge
+    lengths of its rim, and for a sample of STATISTICS_SAMPLE others; the rest, deep inside, take their nearest
+    vertex's distance to the rim (only the sign matters there) and a NaN distance."""
+    points = np.asarray(points, dtype=float)
+    _, nearest = other.tree.query(points)
+    vertex_rim = other.vertex_rim_distance[nearest]
+    exact = vertex_rim <= BAND * other.edge
+    inner = np.flatnonzero(~exact)
+    if len(inner) > STATISTICS_SAMPLE:
+        inner = np.random.default_rng(0).choice(inner, STATISTICS_SAMPLE, replace=False)
+    exact[inner] = True
+    signed, distance = vertex_rim.copy(), np.full(len(points), np.nan)
+    closest, distance[exact], normal = other.closest(points[exact])
     rim = other.rim_distance(closest)
-    gap = points - closest
+    gap = points[exact] - closest
     tangential = np.linalg.norm(gap - np.sum(gap * normal, axis=1, keepdims=True) * normal, axis=1)
-    on_rim = rim <= RIM_EPSILON * other.edge
-    return np.where(on_rim, -tangential, rim), distance
+    signed[exact] = np.where(rim <= RIM_EPSILON * other.edge, -tangential, rim)
+    return signed, distance
 
 
 @dataclass(frozen=True)
@@ -224,53 +241,83 @@ def _side(points: np.ndarray, disk: DiskMesh, other: Surface, edge: float) -> Si
 def _coincidence(first: Side, second: Side, edge: float) -> tuple[float, float]:
     """RMS distance to the other mesh over both overlaps' vertices, and the fraction within COINCIDE edges."""
     d = np.r_[first.distance[first.signed >= 0], second.distance[second.signed >= 0]]
+    d = d[np.isfinite(d)]
     if len(d) == 0:
         return np.inf, 0.0
     return float(np.sqrt(np.mean(d**2))), float(np.mean(d <= COINCIDE * edge))
 
 
-def find_overlap(first: DiskMesh, second: DiskMesh, hint: np.ndarray | None = None) -> Overlap:
-    """Pose the second mesh in the first's frame, find where they overlap and say how (see the module docstring).
+def _sides(first: DiskMesh, second: DiskMesh, target: Surface, positions: np.ndarray, edge: float):
+    """Both sides of the overlap with the second's vertices at ``positions`` in the first's frame, the RMS distance
+    over the overlap and the fraction that coincides."""
+    one = _side(first.vertices, first, Surface(positions, second.faces), edge)
+    two = _side(positions, second, target, edge)
+    return one, two, *_coincidence(one, two, edge)
+
+
+def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float) -> tuple[str, str]:
+    """The regime (and why the meshes are registered whole, if they are) of an overlap found at a pose ("rigid")
+    or with the warp ("elastic")."""
+    tolerance = FULL_TOLERANCE[regime]
+    if coincide < COINCIDE_ENOUGH:
+        return "whole", "no pose or warp makes the meshes coincide where they overlap"
+    if one.fraction >= 1 - tolerance and two.fraction >= 1 - tolerance:
+        return "full", ""
+    if regime == "elastic" and abs(np.log(scale)) > SAME_SCALE:
+        return "whole", "a deformed pair at different scales: its overlap is not judged"
+    return regime, ""
+
+
+def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
+    """Pose the second mesh in the first's frame (:func:`meshreg.mesh.align.align`) and find where they overlap at
+    that pose. Regime "full" or "rigid" when the pose makes them coincide (RMS over the overlap below TIGHT edge
+    lengths); else "deformed": the warp of :func:`warped_overlap` decides."""
+    start = time.perf_counter()
+    s1, s2 = Surface(first.vertices, first.faces), Surface(second.vertices, second.faces)
+    alignment = align(s1, s2)
+    edge = max(s1.edge, alignment.scale * s2.edge)
+    posed = transform_points(alignment.matrix, second.vertices)
+    one, two, rms, coincide = _sides(first, second, s1, posed, edge)
+    regime, reason = _verdict("rigid", one, two, coincide, alignment.scale) if rms <= TIGHT * edge else ("deformed", "")
+    seconds = time.perf_counter() - start
+    return Overlap(regime, one, two, alignment, posed, edge, {"pose": rms}, coincide, seconds, reason)
+
+
+def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray) -> Overlap:
+    """The overlap of a pair that no pose makes coincide (``posed``, regime "deformed"), from an
+    as-rigid-as-possible warp of the second mesh onto the first (:func:`meshreg.mesh.warp.arap_warp`).
+
+    The warp starts from the pose that fits the second (at the scale of ``posed``) onto ``matches``, its vertices'
+    matches on the first by the elastic registration of the whole meshes: that pose centres a bent mesh where a
+    rigid fit settles on one side. When the warp does not bring the meshes much closer than the pose (RMS within
+    RIGID_RATIO), the pose stands (regime "rigid": noise, not deformation).
 
     Parameters
     ----------
     first, second : DiskMesh
-    hint : ndarray (4, 4), optional
-        A similarity taking the second mesh into the first's frame, tried as one more pose.
+    posed : Overlap
+        :func:`rigid_overlap` of the two.
+    matches : ndarray, shape (n2, 3)
+        Per vertex of the second disk, its matched point on the first (NaN: none).
     """
     start = time.perf_counter()
-    s1, s2 = Surface(first.vertices, first.faces), Surface(second.vertices, second.faces)
-    alignment = align(s1, s2, hint)
-    edge = max(s1.edge, alignment.scale * s2.edge)
-    posed = transform_points(alignment.matrix, second.vertices)
-
-    def sides(positions):
-        moved = Surface(positions, second.faces)
-        one = _side(first.vertices, first, moved, edge)
-        two = _side(positions, second, s1, edge)
-        return one, two, *_coincidence(one, two, edge)
-
-    one, two, rms, coincide = sides(posed)
-    rms_all = {"rigid": rms}
-    regime, positions = "rigid", posed
-    if rms > TIGHT * edge:
-        warp = arap_warp(posed, second.faces, s1)
-        warped = warp.positions
-        w_one, w_two, w_rms, w_coincide = sides(warped)
-        rms_all["warp"] = w_rms
-        rms_all["strain"] = warp.strain
-        if rms > RIGID_RATIO * w_rms:
-            regime, positions, one, two, coincide = "elastic", warped, w_one, w_two, w_coincide
-    tolerance = FULL_TOLERANCE[regime]
-    reason = ""
-    if coincide < COINCIDE_ENOUGH:
-        regime, reason = "whole", "no pose or warp makes the meshes coincide where they overlap"
-    elif one.fraction >= 1 - tolerance and two.fraction >= 1 - tolerance:
-        regime = "full"
-    elif regime == "elastic" and abs(np.log(alignment.scale)) > SAME_SCALE:
-        regime, reason = "whole", "a deformed pair at different scales: its overlap is not judged"
-    seconds = time.perf_counter() - start
-    return Overlap(regime, one, two, alignment, positions, edge, rms_all, coincide, seconds, reason)
+    target = Surface(first.vertices, first.faces)
+    scale = posed.alignment.scale
+    rest = scale * second.vertices
+    known = np.all(np.isfinite(matches), axis=1)
+    c0, c1 = rest[known].mean(axis=0), matches[known].mean(axis=0)
+    rotation = kabsch((rest[known] - c0).T @ (matches[known] - c1))
+    warp = arap_warp((rest - c0) @ rotation.T + c1, second.faces, target)
+    one, two, rms, coincide = _sides(first, second, target, warp.positions, posed.edge)
+    rms_all = {**posed.rms, "warp": rms, "strain": warp.strain}
+    if posed.rms["pose"] <= RIGID_RATIO * rms:
+        regime, reason = _verdict("rigid", posed.first, posed.second, posed.coincide, scale)
+        one, two, coincide, positions = posed.first, posed.second, posed.coincide, posed.positions
+    else:
+        regime, reason = _verdict("elastic", one, two, coincide, scale)
+        positions = warp.positions
+    seconds = posed.seconds + time.perf_counter() - start
+    return Overlap(regime, one, two, posed.alignment, positions, posed.edge, rms_all, coincide, seconds, reason)
 
 
 def trim(disk: DiskMesh, signed: np.ndarray) -> tuple[DiskMesh, sp.csr_matrix]:

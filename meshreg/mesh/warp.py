@@ -46,7 +46,7 @@ def _rotations(rest: np.ndarray, current: np.ndarray, i: np.ndarray, j: np.ndarr
     return np.einsum("nji,nkj->nik", vt, u)
 
 
-def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> Warp:
+def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface, start: np.ndarray | None = None) -> Warp:
     """Bend a mesh onto ``target`` as rigidly as possible.
 
     Parameters
@@ -55,6 +55,8 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> Warp:
         The mesh's vertices, already in the target's frame (posed and scaled by a similarity).
     faces : ndarray, shape (m, 3)
     target : Surface
+    start : ndarray, shape (n, 3), optional
+        Where the vertices start (default ``rest``): e.g. their matches on the target by an elastic registration.
 
     Returns
     -------
@@ -66,7 +68,7 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> Warp:
     ones = np.ones(len(edges))
     adjacency = sp.csr_matrix((np.r_[ones, ones], (np.r_[i, j], np.r_[j, i])), shape=(n, n))
     laplacian = sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
-    current = rest.copy()
+    current = (rest if start is None else np.asarray(start, dtype=float)).copy()
     held = np.zeros(n, dtype=bool)
     for weight in WARP_WEIGHTS:
         for _ in range(WARP_ROUNDS):
