@@ -171,10 +171,13 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
         stages=result.energy_stages,
     )
     notes = []
-    for name, info in mr.info.items():
+    for name in ("first", "second"):
+        info = mr.info[name]
         notes += [f"{name} mesh cleanup: {line}" for line in info["cleanup"]]
         if info["flipped"]:
             notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
+    if "overlap" in mr.info:
+        notes.append(overlap_note(mr.info["overlap"]))
     files = [out / RESULT_FILE, out / FIGURE_FILE, *(out / name for name in MESH_FILES)]
     if html:
         from .view import VIEW_FILE, write_view
@@ -189,6 +192,17 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
         )
         files.append(view)
     return Written(result, files, notes), mr
+
+
+def overlap_note(overlap: dict) -> str:
+    """One line saying how much of each mesh overlaps the other and what was registered."""
+    share = f"first {overlap['first_fraction']:.1%}, second {overlap['second_fraction']:.1%} of their area"
+    if overlap["regime"] == "full":
+        return f"overlap: the meshes cover the same region ({share}); registered whole"
+    if overlap["regime"] == "whole":
+        return f"overlap: {share} at the best pose, not trusted ({overlap['reason']}); registered whole"
+    how = "the same surface" if overlap["regime"] == "rigid" else "a deformed surface"
+    return f"overlap: {share} ({how}); only the common region registered, vertices outside it unmatched (grey)"
 
 
 def run_demo(out, options: Options | None = None, callback: Progress | None = None, html: bool = True) -> Written:

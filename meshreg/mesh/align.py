@@ -39,19 +39,19 @@ RANSAC_EDGE_RATIO = 0.9  # a triplet's sides must agree within this ratio on bot
 RANSAC_DISTANCE = 1.5  # a match is explained within this many voxels
 RANSAC_KEEP = 4  # best RANSAC poses refined per scale and orientation
 RANSAC_SEED = 0
-ICP_COARSE = 20  # ICP iterations of every candidate (COARSE_POINTS points, nearest vertices' tangent planes)
+ICP_COARSE = 10  # ICP iterations of every candidate (COARSE_POINTS points, nearest vertices' tangent planes)
 ICP_FINE = 20  # ICP iterations of the best candidates (every sample point, with and without scale)
 ICP_EXACT = 10  # ICP iterations of the best pose against the triangles (exact closest points)
 COARSE_POINTS = 500
 ICP_TRIM = 2.5  # pairs farther than this times the median distance are dropped
 ICP_TRIM_FLOOR = 1.0  # ... but never those within this many edge lengths
 ICP_TOL = 1e-7  # ICP stops when the pose changes by less than this (relative)
-SCORE_LEVELS = (0.25, 4.0)  # distances (edge lengths) at which poses are scored, tightest first
+SCORE_LEVELS = (0.05, 0.25, 4.0)  # distances (edge lengths) at which poses are scored, tightest first
 SCORE_ENOUGH = 0.25  # a level ranks the poses when one of them scores this much at it (see _ranking)
 SCORE_REACH = 2.0  # scored points lie within this many times the level (>= 1 edge length) of the other's vertices
 FINALISTS = 3  # candidates refined on every sample point
 SCALE_TIE = 0.05  # scales within this log ratio of one another are tried once
-POINT_WEIGHT = 0.1  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
+POINT_WEIGHT = 0.0  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
 ICP_VOXEL = 0.03  # voxel of the ICP samples, in units of sqrt(area) of each mesh (>= 1 edge length)
 
 

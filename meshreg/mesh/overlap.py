@@ -307,15 +307,15 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
     known = np.all(np.isfinite(matches), axis=1)
     c0, c1 = rest[known].mean(axis=0), matches[known].mean(axis=0)
     rotation = kabsch((rest[known] - c0).T @ (matches[known] - c1))
-    warp = arap_warp((rest - c0) @ rotation.T + c1, second.faces, target)
-    one, two, rms, coincide = _sides(first, second, target, warp.positions, posed.edge)
-    rms_all = {**posed.rms, "warp": rms, "strain": warp.strain}
+    warped = arap_warp((rest - c0) @ rotation.T + c1, second.faces, target)
+    one, two, rms, coincide = _sides(first, second, target, warped, posed.edge)
+    rms_all = {**posed.rms, "warp": rms}
     if posed.rms["pose"] <= RIGID_RATIO * rms:
         regime, reason = _verdict("rigid", posed.first, posed.second, posed.coincide, scale)
         one, two, coincide, positions = posed.first, posed.second, posed.coincide, posed.positions
     else:
         regime, reason = _verdict("elastic", one, two, coincide, scale)
-        positions = warp.positions
+        positions = warped
     seconds = posed.seconds + time.perf_counter() - start
     return Overlap(regime, one, two, posed.alignment, positions, posed.edge, rms_all, coincide, seconds, reason)
 

@@ -15,6 +15,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..correspondence import Side
 from ..diffeo import identity
@@ -28,8 +29,10 @@ from .harmonic import HarmonicMap, choose_corners
 from .overlap import Overlap, trim
 from .resample import resample_grid
 from .surface import Surface, transform_points
+from .topology import DiskMesh
 
 REFINE_ITERATIONS = 30  # ICP iterations of the rigid pose on the trimmed parts (exact closest points)
+RIM_SNAP = 2.0  # the second's rim vertex nearest to a corner of the first takes the corner within this many edges
 
 
 def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], options: Options, infos: dict):
@@ -54,13 +57,15 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     trimmed2, carry2 = trim(second, overlap.second.signed)
     positions = carry2 @ overlap.positions
     target = Surface(trimmed1.vertices, trimmed1.faces)
+    pose = None
     if overlap.regime == "rigid":
         cloud = Cloud(trimmed2.vertices, Surface(trimmed2.vertices, trimmed2.faces).normals)
-        matrix, _ = icp(cloud, target, overlap.alignment.matrix, iterations=REFINE_ITERATIONS, exact=True)
-        positions = transform_points(matrix, trimmed2.vertices)
-    uv1, corner_info = HarmonicMap(trimmed1, options.weights)(choose_corners(trimmed1))
-    _, _, triangle, weights = target.project(positions)
-    uv2 = np.clip(target.at(uv1, triangle, weights), 0.0, 1.0)
+        pose, _ = icp(cloud, target, overlap.alignment.matrix, iterations=REFINE_ITERATIONS, exact=True)
+        positions = transform_points(pose, trimmed2.vertices)
+    corners = choose_corners(trimmed1)
+    uv1, corner_info = HarmonicMap(trimmed1, options.weights)(corners)
+    closest, _, triangle, weights = target.project(positions)
+    uv2 = _on_the_rim(trimmed2, positions, target.at(uv1, triangle, weights), trimmed1, corners, overlap.edge)
     n = options.resolution
     grid1 = resample_grid(trimmed1.vertices, trimmed1.faces, uv1, n, n)
     # the second at the first's nodes: the point of the trimmed second whose place in the first's frame is closest
@@ -72,12 +77,18 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     )
     objective = Objective(grid1, grid2)
     h = identity(grid1.r, grid1.t)
-    rotation = kabsch(objective.best_rotation_covariance(h))
+    if pose is None:  # a warp: the rotation that minimizes E, the similarity fitted to the matches
+        rotation = kabsch(objective.best_rotation_covariance(h))
+        transform = similarity(rotation, grid1.points, grid2.points)
+    else:  # the same surface: the pose itself
+        transform = np.linalg.inv(pose)
+        rotation = transform[:3, :3] / np.cbrt(np.linalg.det(transform[:3, :3]))
     energy = objective.energy(rotation, h)
     infos = {name: dict(info) for name, info in infos.items()}
     for name, disk in (("first", trimmed1), ("second", trimmed2)):
         infos[name]["overlap"] = disk.report
     infos["first"].update(corner_info)
+    infos["second"].update(_layout_report(uv2, trimmed2.faces))
     infos["overlap"] = overlap.summary()
     seconds = time.perf_counter() - start
     result = Registration(
@@ -93,8 +104,40 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
         timings={"overlap": overlap.seconds, "register": seconds, "total": overlap.seconds + seconds},
         symmetry=0,
         energy_stages=("overlap",),
-        transform=similarity(rotation, grid1.points, grid2.points),
+        transform=transform,
     )
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip((trimmed1, trimmed2), (uv1, uv2), n_input, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
     return MeshRegistration(trimmed1, trimmed2, uv1, uv2, (grid1, grid2), result, uv2, infos)
+
+
+def _on_the_rim(
+    disk: DiskMesh, positions: np.ndarray, uv: np.ndarray, first: DiskMesh, corners: np.ndarray, edge: float
+) -> np.ndarray:
+    """The second's layout (its vertices' places on the square, ``uv`` (n, 2)) with its rim on the square's sides:
+    each of its rim vertices onto the nearest side, and the rim vertex nearest (at ``positions``, in the first's
+    frame) to each of the first's corners onto that corner, when within RIM_SNAP edge lengths. The two trimmed
+    rims are one curve, but the second's rim vertices lie between the first's, a little inside; without this the
+    first's points along the rim would fall just outside the second's layout and find no match."""
+    out = np.clip(uv, 0.0, 1.0)
+    loop = disk.boundary
+    rim = out[loop]
+    gaps = np.stack([rim[:, 0], 1 - rim[:, 0], rim[:, 1], 1 - rim[:, 1]], axis=1)
+    side = np.argmin(gaps, axis=1)
+    rim[side == 0, 0], rim[side == 1, 0], rim[side == 2, 1], rim[side == 3, 1] = 0.0, 1.0, 0.0, 1.0
+    out[loop] = rim
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    distance, nearest = cKDTree(positions[loop]).query(first.vertices[first.boundary[corners]])
+    for k in range(4):
+        if distance[k] <= RIM_SNAP * edge:
+            out[loop[nearest[k]]] = square[k]
+    return out
+
+
+def _layout_report(uv: np.ndarray, faces: np.ndarray) -> dict:
+    """Triangles of a layout on the square turned against most of the others ("flipped") and of about zero area
+    ("degenerate"), as :class:`~meshreg.mesh.harmonic.HarmonicMap` reports them."""
+    d1, d2 = uv[faces[:, 1]] - uv[faces[:, 0]], uv[faces[:, 2]] - uv[faces[:, 0]]
+    signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    majority = 1.0 if np.sum(signed > 0) >= np.sum(signed < 0) else -1.0
+    return {"flipped": int(np.sum(majority * signed < 0)), "degenerate": int(np.sum(np.abs(signed) < 1e-14))}

@@ -12,13 +12,12 @@ sharing it).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .align import rigid_step
+from .harmonic import factorize
 from .surface import NORMAL_AGREEMENT, Surface, transform_points, vertex_normals
 
 WARP_WEIGHTS = (0.01, 0.03, 0.1, 0.3, 1.0)  # data weight per vertex against the ARAP energy, annealed
@@ -46,7 +45,7 @@ def _rotations(rest: np.ndarray, current: np.ndarray, i: np.ndarray, j: np.ndarr
     return np.einsum("nji,nkj->nik", vt, u)
 
 
-def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface, start: np.ndarray | None = None) -> Warp:
+def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarray:
     """Bend a mesh onto ``target`` as rigidly as possible.
 
     Parameters
@@ -55,12 +54,11 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface, start: np.nd
         The mesh's vertices, already in the target's frame (posed and scaled by a similarity).
     faces : ndarray, shape (m, 3)
     target : Surface
-    start : ndarray, shape (n, 3), optional
-        Where the vertices start (default ``rest``): e.g. their matches on the target by an elastic registration.
 
     Returns
     -------
-    Warp
+    ndarray, shape (n, 3)
+        The vertices after the warp.
     """
     n = len(rest)
     edges = _edges(faces)
@@ -68,8 +66,7 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface, start: np.nd
     ones = np.ones(len(edges))
     adjacency = sp.csr_matrix((np.r_[ones, ones], (np.r_[i, j], np.r_[j, i])), shape=(n, n))
     laplacian = sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
-    current = (rest if start is None else np.asarray(start, dtype=float)).copy()
-    held = np.zeros(n, dtype=bool)
+    current = rest.copy()
     for weight in WARP_WEIGHTS:
         for _ in range(WARP_ROUNDS):
             # a rigid point-to-plane step first: the whole mesh slides along the target, which the per-vertex goals
@@ -77,7 +74,6 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface, start: np.nd
             held, tn, foot = _pairs(current, faces, target)
             if held.sum() >= 6:
                 current = transform_points(rigid_step(current[held], tn[held], foot[held]), current)
-                held, tn, foot = _pairs(current, faces, target)
             plane = np.sum(tn * (current - foot), axis=1)
             goal = current - plane[:, None] * tn
             rot = _rotations(rest, current, i, j, n)
@@ -88,33 +84,8 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface, start: np.nd
             np.add.at(rhs, j, -turned)
             data = weight * held + 1e-9
             rhs += data[:, None] * np.where(held[:, None], goal, current)
-            current = spla.splu((laplacian + sp.diags(data)).tocsc()).solve(rhs)
-    rot = _rotations(rest, current, i, j, n)
-    rest_edges = rest[i] - rest[j]
-    residual = (current[i] - current[j]) - 0.5 * np.einsum("eab,eb->ea", rot[i] + rot[j], rest_edges)
-    strain = float(np.sqrt(np.sum(residual**2) / np.sum(rest_edges**2)))
-    return Warp(current, held, strain)
-
-
-@dataclass(frozen=True)
-class Warp:
-    """The result of :func:`arap_warp`.
-
-    Attributes
-    ----------
-    positions : ndarray, shape (n, 3)
-        The vertices after the warp.
-    held : ndarray of bool, shape (n,)
-        The vertices the data term held in the last iteration (near the target, away from its rim, normals
-        agreeing).
-    strain : float
-        How far the warp is from an isometry: the RMS of the edges' change beyond their vertices' rotations,
-        relative to the RMS edge length (0 for a rigid motion or a bend without stretch).
-    """
-
-    positions: np.ndarray
-    held: np.ndarray
-    strain: float
+            current = factorize((laplacian + sp.diags(data)).tocsc()).solve(rhs)
+    return current
 
 
 def _pairs(current: np.ndarray, faces: np.ndarray, target: Surface):
