@@ -116,7 +116,23 @@ class Overlap:
             "scale": self.alignment.scale,
             "pose_source": self.alignment.source,
             "pose": self.alignment.matrix.tolist(),
+            "seconds": self.seconds,
+            "parameters": parameters(),
         }
+
+
+def parameters() -> dict:
+    """The numerics of the pose, the overlap and the warp (module constants), as recorded with each result."""
+    from . import align, warp
+
+    names = {
+        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH"),
+        warp: ("WARP_WEIGHTS", "WARP_ROUNDS", "WARP_TRIM", "WARP_TRIM_FLOOR"),
+    }
+    out = {name: getattr(module, name) for module, keys in names.items() for name in keys}
+    local = ("SNAP", "BAND", "COINCIDE", "COINCIDE_ENOUGH", "TIGHT", "RIGID_RATIO", "FULL_TOLERANCE", "SAME_SCALE")
+    out.update({name: globals()[name] for name in local})
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
 
 
 def signed_rim_distance(points: np.ndarray, other: Surface) -> tuple[np.ndarray, np.ndarray]:
