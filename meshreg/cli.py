@@ -11,12 +11,31 @@ The registration flags are generated from :data:`meshreg.options.FLAGS`.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, RunError
+
+EXIT_RUN, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 2, 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the run stops its workers and says where its finished work is."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line (with where to find the usage), exit status 2."""
+
+    def error(self, message):
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _progress_callback(bar):
@@ -92,10 +111,11 @@ def cmd_demo(args) -> int:
 def cmd_matrix(args) -> int:
     from tqdm import tqdm
 
-    from .batch import matrix_files
+    from .batch import check_matrix, matrix_files
     from .options import options_from_args
 
     options = options_from_args(args)
+    check_matrix(args.files, args.output, options, jobs=args.jobs, scheduler=args.scheduler)
     n = len(args.files)
     if not args.quiet:
         print(
@@ -113,7 +133,7 @@ def cmd_matrix(args) -> int:
             bar.n = done
             bar.refresh()
 
-        result, figure = matrix_files(
+        run = matrix_files(
             args.files,
             args.output,
             options,
@@ -121,12 +141,23 @@ def cmd_matrix(args) -> int:
             scheduler=args.scheduler,
             plot=args.plot,
             progress=progress,
+            retry_failed=args.retry_failed,
         )
-    print(f"{n} surfaces, {n * (n - 1) // 2} pairs -> {args.output} (distance = sqrt(E), energy, rotations, seconds)")
+    result = run.result
+    for k, reason in sorted(result.skipped.items()):
+        print(f"skipped {args.files[k]}: {reason}")
     for (i, j), reason in sorted(result.failures.items()):
-        print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
-    if figure is not None:
-        print(f"figure         {figure}")
+        if i not in result.skipped and j not in result.skipped:
+            print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
+    if run.written is not None:
+        print(
+            f"{n} surfaces, {n * (n - 1) // 2} pairs -> {run.written} (distance = sqrt(E), energy, rotations, seconds)"
+        )
+    if run.figure is not None:
+        print(f"figure         {run.figure}")
+    if run.error:
+        print(f"meshreg: error: {run.error}", file=sys.stderr)
+        return EXIT_RUN
     return 0
 
 
@@ -141,7 +172,7 @@ def cmd_paper(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from .options import MODES, add_flags
 
-    parser = argparse.ArgumentParser(prog="meshreg", description="Elastic shape registration of surfaces.")
+    parser = _Parser(prog="meshreg", description="Elastic shape registration of surfaces.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     reg = sub.add_parser("register", help="register two surfaces (two disk meshes or two grid files)")
@@ -179,6 +210,12 @@ def build_parser() -> argparse.ArgumentParser:
     matrix.add_argument("--jobs", type=int, default=None, help="local worker processes (default: all cores)")
     matrix.add_argument("--scheduler", help="a dask.distributed scheduler address, e.g. tcp://host:8786")
     matrix.add_argument("--plot", action="store_true", help="also write OUTPUT.png: heat map, dendrogram, MDS")
+    matrix.add_argument(
+        "--retry-failed",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="when resuming, run again the pairs that failed before (default; --no-retry-failed keeps them failed)",
+    )
     add_flags(matrix, groups=("registration", "meshes"))
     matrix.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     matrix.set_defaults(func=cmd_matrix)
@@ -191,16 +228,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run a command; returns the exit status: 0 done, 1 a run that did not finish its work (RunError, pairs
+    without a value, out of memory), 2 bad input (InputError, usage), 130 Ctrl-C, 143 SIGTERM. Each error is one
+    line on stderr; only an unexpected exception (a bug) shows a traceback."""
     args = build_parser().parse_args(argv)
+    previous = signal.getsignal(signal.SIGTERM)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
     except InputError as err:
-        print(f"meshreg: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("meshreg: interrupted", file=sys.stderr)
-        return 130
+        print(f"meshreg: error: {_line(err)}", file=sys.stderr)
+        return EXIT_INPUT
+    except RunError as err:
+        print(f"meshreg: error: {_line(err)}", file=sys.stderr)
+        return EXIT_RUN
+    except MemoryError:
+        print(
+            "meshreg: error: out of memory: lower --resolution or the grid size, or free memory (no output written)",
+            file=sys.stderr,
+        )
+        return EXIT_RUN
+    except KeyboardInterrupt as err:
+        notes = "; ".join(getattr(err, "__notes__", []))
+        print(f"meshreg: interrupted{': ' + notes if notes else ''}", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(err, Terminated) else EXIT_INTERRUPTED
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

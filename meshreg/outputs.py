@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .files import output_dir, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
 from .result import Registration
 from .schedule import Progress
@@ -28,6 +29,10 @@ RESULT_FILE = "result.npz"
 REVERSE_FILE = "result_reverse.npz"
 FIGURE_FILE = "registration.png"
 MESH_FILES = ("first.ply", "second.ply", "registered.ply", "meshes.png")
+# every file a run may write: those of an earlier run are removed before this run computes, so that none of them
+# can pass for this run's
+OUTPUT_FILES = (RESULT_FILE, REVERSE_FILE, FIGURE_FILE, *MESH_FILES)
+DEMO_INPUTS = ("inputs/terrain_a.ply", "inputs/terrain_b.ply")
 
 
 @dataclass
@@ -40,16 +45,12 @@ class Written:
     reverse: Registration | None = None
 
 
-def output_dir(path, inputs: list[Path]) -> Path:
-    """The output directory, made if missing; refused when it is a file or would overwrite an input."""
-    out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out} exists and is not a directory: give another -o")
-    resolved = {p.resolve() for p in inputs}
-    for name in (RESULT_FILE, REVERSE_FILE, FIGURE_FILE, *MESH_FILES):
-        if (out / name).resolve() in resolved:
-            raise InputError(f"{out / name} is an input file: choose another output directory")
-    out.mkdir(parents=True, exist_ok=True)
+def prepare_output(path, inputs: list[Path], names=OUTPUT_FILES) -> Path:
+    """The output directory, checked before any computation (:func:`meshreg.files.output_dir`: made if missing;
+    refused when it is a file, under a file, not writable, or an output would overwrite an input or a directory),
+    with the outputs of an earlier run removed."""
+    out = output_dir(path, names, inputs)
+    remove_outputs(out, names)
     return out
 
 
@@ -65,6 +66,11 @@ def register_files(
 ) -> Written:
     """Register two files (two grid files or two disk meshes, by suffix) and write the outputs to ``out``.
 
+    Everything that can be checked before the registration is: the inputs are read, the grid sizes and the DP
+    window checked against the limits (:mod:`meshreg.limits`), and the output place prepared (:func:`prepare_output`)
+    before any computation. The outputs are written all together or not at all (:func:`meshreg.files.staged`); the
+    inputs are never written.
+
     Parameters
     ----------
     first, second : str or Path
@@ -77,88 +83,106 @@ def register_files(
         Grids: also register the second onto the first (``result_reverse.npz``).
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
+
+    Raises
+    ------
+    InputError
+        Bad inputs, parameters or output place (before any computation).
+    RunError
+        The outputs could not be written (nothing is then left of them).
     """
     from .grid import read_grid
-    from .mesh.topology import MESH_SUFFIXES, load_mesh
+    from .mesh.topology import load_mesh
 
     options = options or Options()
     paths = [Path(first), Path(second)]
-    is_mesh = [p.suffix.lower() in MESH_SUFFIXES for p in paths]
-    if any(is_mesh):
-        if not all(is_mesh):
-            raise InputError("give two meshes or two grid files, not one of each")
+    kinds = {surface_kind(p) for p in paths}
+    if len(kinds) > 1:
+        raise InputError("give two meshes or two grid files, not one of each")
+    if kinds == {"mesh"}:
         meshes = [load_mesh(p) for p in paths]
-        return write_mesh_registration(meshes[0], meshes[1], output_dir(out, paths), options, callback)
+        side = (options.resolution, options.resolution)
+        options.check_grids(side, side)
+        out = prepare_output(out, paths)
+        return write_mesh_registration(meshes[0], meshes[1], out, options, callback, names=[str(p) for p in paths])
     grids = [read_grid(p, grid_shape) for p in paths]
-    return write_grid_registration(grids[0], grids[1], output_dir(out, paths), options, symmetric, callback)
+    options.check_grids(grids[0].shape, grids[1].shape)
+    if symmetric:
+        options.check_grids(grids[1].shape, grids[0].shape)
+    return write_grid_registration(grids[0], grids[1], prepare_output(out, paths), options, symmetric, callback)
 
 
 def write_grid_registration(
     first, second, out: Path, options: Options, symmetric: bool = False, callback: Progress | None = None
 ) -> Written:
-    """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result)."""
+    """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result) into
+    the prepared directory ``out``, all together or not at all."""
     from .register import register_with
     from .viz import plot_registration
 
     result = register_with(first, second, options, callback)
-    result.save(out / RESULT_FILE)
-    plot_registration(
-        result.apply(first.scaled().points),
-        second.scaled().at(result.h),
-        result.energy_history,
-        out / FIGURE_FILE,
-        title=f"{options.mode}: E = {result.energy:.3g}",
-    )
-    written = Written(result, [out / RESULT_FILE, out / FIGURE_FILE])
-    if symmetric:
-        written.reverse = register_with(second, first, options)
-        written.reverse.save(out / REVERSE_FILE)
-        written.files.append(out / REVERSE_FILE)
-    return written
+    reverse = register_with(second, first, options) if symmetric else None
+    names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
+    with staged(out, names) as stage:
+        result.save(stage / RESULT_FILE)
+        plot_registration(
+            result.apply(first.scaled().points),
+            second.scaled().at(result.h),
+            result.energy_history,
+            stage / FIGURE_FILE,
+            title=f"{options.mode}: E = {result.energy:.3g}",
+        )
+        if reverse is not None:
+            reverse.save(stage / REVERSE_FILE)
+    return Written(result, [out / name for name in names], reverse=reverse)
 
 
-def write_mesh_registration(first, second, out: Path, options: Options, callback: Progress | None = None) -> Written:
-    """Register two (vertices, faces) meshes and write coloured meshes, ``result.npz`` and both figures."""
+def write_mesh_registration(
+    first, second, out: Path, options: Options, callback: Progress | None = None, names=("first mesh", "second mesh")
+) -> Written:
+    """Register two (vertices, faces) meshes and write coloured meshes, ``result.npz`` and both figures into the
+    prepared directory ``out``, all together or not at all (``names``: the meshes in error messages)."""
     from .mesh.correspond import register_meshes, similarity_transform
     from .mesh.export import colored_outputs, write_ply
     from .viz import plot_meshes, plot_registration
 
-    mr = register_meshes(first, second, options, callback)
+    mr = register_meshes(first, second, options, callback, names)
     (v1, f1), (v2, f2) = first, second
     c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
-    write_ply(out / "first.ply", v1, f1, c1)
-    write_ply(out / "second.ply", v2, f2, c2)
-    write_ply(out / "registered.ply", *registered)
     uv1 = mr.first.to_input(mr.uv1, len(v1), [np.nan, np.nan])
     uv2 = mr.second.to_input(mr.uv2, len(v2), [np.nan, np.nan])
-    mr.result.save(out / RESULT_FILE, uv_first=uv1, uv_second=uv2)
     energy = mr.result.energy
-    plot_meshes(
-        out / "meshes.png",
-        v1,
-        f1,
-        c1,
-        v2,
-        f2,
-        c2,
-        title=f"E = {energy:.3g}: corresponding points share a colour",
-        second_to_first=np.linalg.inv(similarity_transform(mr)),
-    )
     g1, g2 = mr.grids
-    plot_registration(
-        mr.result.apply(g1.scaled().points),
-        g2.scaled().at(mr.result.h),
-        mr.result.energy_history,
-        out / FIGURE_FILE,
-        title=f"E = {energy:.3g}",
-    )
+    names = [RESULT_FILE, FIGURE_FILE, *MESH_FILES]
+    with staged(out, names) as stage:
+        write_ply(stage / "first.ply", v1, f1, c1)
+        write_ply(stage / "second.ply", v2, f2, c2)
+        write_ply(stage / "registered.ply", *registered)
+        mr.result.save(stage / RESULT_FILE, uv_first=uv1, uv_second=uv2)
+        plot_meshes(
+            stage / "meshes.png",
+            v1,
+            f1,
+            c1,
+            v2,
+            f2,
+            c2,
+            title=f"E = {energy:.3g}: corresponding points share a colour",
+            second_to_first=np.linalg.inv(similarity_transform(mr)),
+        )
+        plot_registration(
+            mr.result.apply(g1.scaled().points),
+            g2.scaled().at(mr.result.h),
+            mr.result.energy_history,
+            stage / FIGURE_FILE,
+            title=f"E = {energy:.3g}",
+        )
     notes = []
     for name, info in mr.info.items():
         notes += [f"{name} mesh cleanup: {line}" for line in info["cleanup"]]
         if info["flipped"]:
             notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
-    files = [out / RESULT_FILE, out / FIGURE_FILE, *(out / name for name in MESH_FILES)]
-    return Written(mr.result, files, notes)
+    return Written(mr.result, [out / name for name in names], notes)
 
 
 def run_demo(out, options: Options | None = None, callback: Progress | None = None) -> Written:
@@ -167,12 +191,11 @@ def run_demo(out, options: Options | None = None, callback: Progress | None = No
     from .mesh.export import write_ply
     from .mesh.samples import demo_pair
 
-    out = output_dir(out, [])
+    out = prepare_output(out, [], OUTPUT_FILES + DEMO_INPUTS)
     (v1, f1, _), (v2, f2, _) = demo_pair()
-    inputs = out / "inputs"
-    inputs.mkdir(exist_ok=True)
-    write_ply(inputs / "terrain_a.ply", v1, f1, np.full((len(v1), 3), 0.8))
-    write_ply(inputs / "terrain_b.ply", v2, f2, np.full((len(v2), 3), 0.8))
+    for name, (v, f) in zip(DEMO_INPUTS, ((v1, f1), (v2, f2)), strict=True):
+        (out / name).parent.mkdir(exist_ok=True)
+        write_atomic(out / name, lambda tmp, v=v, f=f: write_ply(tmp, v, f, np.full((len(v), 3), 0.8)))
     written = write_mesh_registration((v1, f1), (v2, f2), out, options or Options(), callback)
-    written.notes.insert(0, f"inputs in {inputs} ({len(v1)} and {len(v2)} vertices)")
+    written.notes.insert(0, f"inputs in {out / 'inputs'} ({len(v1)} and {len(v2)} vertices)")
     return written

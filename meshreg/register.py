@@ -33,6 +33,7 @@ from functools import partial
 
 import numpy as np
 
+from .errors import InputError
 from .grid import GridSurface, as_surface
 from .objective import Objective
 from .options import Advanced, Options
@@ -60,6 +61,7 @@ def register(
     max_starts: int = DEFAULTS.max_starts,
     start_basis: int = DEFAULTS.start_basis,
     smoothing: tuple[float, ...] = DEFAULTS.smoothing,
+    force: bool = DEFAULTS.force,
     advanced: Advanced | None = None,
     callback: Progress | None = None,
 ) -> Registration:
@@ -69,8 +71,9 @@ def register(
     ----------
     first, second : GridSurface, ndarray (M, N, 3) or path
         The surfaces; grid sizes may differ. Both are scaled to area 1.
-    mode, window, basis, solver, refine, search, symmetries, max_starts, start_basis, smoothing
-        See :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
+    mode, window, basis, solver, refine, search, symmetries, max_starts, start_basis, smoothing, force
+        See :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...; ``force`` lifts the
+        limits on grid size and DP window of :mod:`meshreg.limits`).
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
@@ -80,6 +83,12 @@ def register(
     Returns
     -------
     Registration
+
+    Raises
+    ------
+    InputError
+        Bad surfaces or parameters, or a grid or window beyond the limits (see :mod:`meshreg.limits`), before
+        any computation.
 
     Examples
     --------
@@ -100,7 +109,8 @@ def register(
         max_starts=max_starts,
         start_basis=start_basis,
         smoothing=smoothing,
-        advanced=advanced or Advanced(),
+        force=force,
+        advanced=Advanced() if advanced is None else advanced,
     )
     return register_with(first, second, options, callback)
 
@@ -109,7 +119,11 @@ def register_with(first, second, options: Options, callback: Progress | None = N
     """:func:`register` with every setting in one :class:`~meshreg.options.Options` (the command line, the mesh
     path and the distance matrix call this)."""
     start = time.perf_counter()
+    options = Options() if options is None else options
+    if not isinstance(options, Options):
+        raise InputError(f"options must be a meshreg.Options, got {type(options).__name__}")
     first, second = as_surface(first), as_surface(second)
+    options.check_grids(first.shape, second.shape)
     timings = {}
     starts = [Start(0, None, float("nan"))]
     if options.mode == "auto" and options.search:

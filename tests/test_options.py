@@ -21,6 +21,7 @@ REGISTRATION_FIELDS = {
     "max_starts",
     "start_basis",
     "smoothing",
+    "force",
 }
 
 

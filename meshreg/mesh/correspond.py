@@ -8,6 +8,7 @@ import numpy as np
 from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, RegularGridInterpolator
 from scipy.spatial import cKDTree
 
+from ..errors import InputError
 from ..options import Options
 from ..register import register_with
 from ..result import Registration
@@ -61,7 +62,7 @@ class MeshRegistration:
 
 
 def register_meshes(
-    first, second, options: Options | None = None, callback: Progress | None = None
+    first, second, options: Options | None = None, callback: Progress | None = None, names=("first mesh", "second mesh")
 ) -> MeshRegistration:
     """Register two meshes given as (vertices (n, 3), faces (m, 3)): clean, parametrize, resample, register.
 
@@ -74,11 +75,20 @@ def register_meshes(
         the square: which corner of the boundary became (0, 0) does not matter).
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
+    names : (str, str)
+        What to call the meshes in error messages (their files, say).
     """
     options = options or Options()
+    side = (options.resolution, options.resolution)
+    options.check_grids(side, side)
     disks, maps, infos = [], [], {}
-    for name, (v, f) in (("first", first), ("second", second)):
-        disk = prepare_disk(v, f, cleanup=options.cleanup)
+    for name, label, mesh in zip(("first", "second"), names, (first, second), strict=True):
+        if not (isinstance(mesh, (tuple, list)) and len(mesh) == 2):
+            raise InputError(f"{label}: a mesh is a pair (vertices (n, 3), faces (m, 3)), got {type(mesh).__name__}")
+        try:
+            disk = prepare_disk(*mesh, cleanup=options.cleanup)
+        except InputError as err:
+            raise InputError(f"{label}: {err}") from None
         disks.append(disk)
         maps.append(HarmonicMap(disk, options.weights))
         infos[name] = {"cleanup": disk.report}
