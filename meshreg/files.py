@@ -103,7 +103,7 @@ def write_atomic(path, write: Callable[[Path], object]) -> Path:
         write(tmp)
         os.replace(tmp, path)
     except OSError as err:
-        raise RunError(f"cannot write {path} ({reason(err)})") from None
+        raise RunError(f"cannot write {path} ({reason(err)})") from err
     finally:
         tmp.unlink(missing_ok=True)
     return path
@@ -128,8 +128,9 @@ def staged(out: Path, names: list[str]) -> Iterator[Path]:
     except BaseException as err:
         for path in moved:
             path.unlink(missing_ok=True)
-        if isinstance(err, OSError):
-            raise RunError(f"cannot write the outputs in {out} ({reason(err)}): no output was written") from None
+        cause = err.__cause__ if isinstance(err, RunError) else err  # write_atomic's RunError names the stage
+        if isinstance(cause, OSError):
+            raise RunError(f"cannot write the outputs in {out} ({reason(cause)}): no output was written") from None
         raise
     finally:
         shutil.rmtree(stage, ignore_errors=True)

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .files import write_atomic
 
 
 @dataclass(frozen=True)
@@ -66,7 +69,15 @@ class Registration:
         return np.asarray(points) @ self.rotation.T
 
     def save(self, path, **extra) -> None:
-        """Write the result to ``path`` (``.npz``; keys listed in docs/outputs.md), plus ``extra`` arrays."""
+        """Write the result to ``path`` (``.npz``; keys listed in docs/outputs.md), plus ``extra`` arrays, atomically
+        (a temporary name in the same directory, then a rename); like numpy, ``.npz`` is appended to a path
+        without it."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
+        write_atomic(path, lambda tmp: self._save(tmp, **extra))
+
+    def _save(self, path, **extra) -> None:
         np.savez(
             path,
             **extra,
@@ -102,5 +113,7 @@ class Registration:
                     timings=json.loads(str(data["timings"])),
                     symmetry=int(data["symmetry"]) if "symmetry" in data else 0,
                 )
-        except (OSError, KeyError, ValueError) as err:
-            raise InputError(f"{path}: not a meshreg result file ({err})") from None
+        except OSError as err:
+            raise InputError(f"{path}: cannot read it ({err.strerror or err})") from None
+        except (KeyError, ValueError, EOFError, zipfile.BadZipFile) as err:
+            raise InputError(f"{path}: not a meshreg result file ({type(err).__name__}: {err})") from None
