@@ -9,7 +9,7 @@
 """
 
 from .batch import DistanceMatrix, distance_matrix
-from .errors import InputError
+from .errors import InputError, RunError
 from .grid import GridSurface, read_grid
 from .options import MODES, Advanced, Options
 from .register import register, register_symmetric, register_with
@@ -23,6 +23,7 @@ __all__ = [
     "InputError",
     "Options",
     "Registration",
+    "RunError",
     "distance_matrix",
     "read_grid",
     "register",

@@ -591,7 +591,10 @@ def matrix_files(
     if len(result.failures) == len(result.names) * (len(result.names) - 1) // 2:
         remove_outputs(out.parent, [out.name, figure_path.name])
         return MatrixRun(result, None, None, checkpoint)
-    result.save(out)
+    try:
+        result.save(out)
+    except RunError as err:
+        raise RunError(f"{err}: the finished pairs are kept in {checkpoint}; rerun the same command") from None
     figure = None
     if plot:
         from .viz import classical_mds, plot_matrix

@@ -2,11 +2,12 @@
 against stated limits. Each refusal gives the estimate, the limit and what to change; ``force=True`` (``--force``)
 lifts these limits knowingly (the hard ranges of :class:`~meshreg.options.Options` stay).
 
-The figures behind the limits were measured on the development machine (2 cores shared, so within a factor of
-two; ``/usr/bin/time`` of :func:`meshreg.register` in mode "auto" on the paper's pair 2):
+The figures behind the limits were measured on the development machine (2 cores shared with other work, so
+within a factor of two; ``/usr/bin/time`` of :func:`meshreg.register` in mode "auto" on the paper's pair 2):
 
-- a 201 x 201 grid registers in 32 s of CPU with a peak of 0.46 GB, a 401 x 401 grid in about 3 min and 1.3 GB;
-  the memory grows with the nodes and the time faster, so :data:`MAX_NODES` is 401 x 401;
+- peak memory 0.46 GB on a 201 x 201 grid, 1.05 GB on 401 x 401, 2.0 GB on 601 x 601 (about 5 KB per node
+  above the interpreter's 0.3 GB), CPU time 32 s, 37 s and 53 s; a distance matrix holds one registration per
+  worker, so :data:`MAX_NODES` is 401 x 401;
 - one DP solve (:func:`meshreg.dp.dp_surface_min`, one round) costs about :data:`DP_SECONDS_PER_PIECE` per edge
   piece it evaluates (:func:`dp_pieces`: the steps of the window times the nodes of its table); a registration
   runs several (up to ``dp_rounds`` per DP pass), so one may take at most :data:`MAX_DP_SECONDS`;
@@ -67,9 +68,8 @@ def check_grids(options, *shapes: tuple[int, int]) -> None:
     for m, n in shapes:
         if m * n > MAX_NODES:
             raise InputError(
-                f"a {m} x {n} grid has {m * n} nodes, above the limit of {MAX_NODES} (401 x 401: about 1.3 GB and "
-                f"3 min per registration, growing faster than the nodes): resample it or lower --resolution, "
-                f"{FORCE_HINT}"
+                f"a {m} x {n} grid has {m * n} nodes, above the limit of {MAX_NODES} (401 x 401, about 1 GB per "
+                f"registration; the memory grows with the nodes): resample it or lower --resolution, {FORCE_HINT}"
             )
     if options.mode == "gd" or not shapes:
         return
@@ -92,7 +92,7 @@ def check_static(options) -> None:
     if nodes > MAX_NODES:
         raise InputError(
             f"resolution {options.resolution} gives {nodes} nodes per grid, above the limit of {MAX_NODES} "
-            f"(401 x 401: about 1.3 GB and 3 min per registration): give --resolution 401 or less, {FORCE_HINT}"
+            f"(about 1 GB per registration at 401 x 401): give --resolution 401 or less, {FORCE_HINT}"
         )
     if options.corner_search > MAX_CORNER_TRIALS:
         raise InputError(

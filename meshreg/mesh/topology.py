@@ -38,8 +38,8 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     except MemoryError:
         raise InputError(f"{path}: too large to read into memory") from None
     except Exception as err:  # trimesh raises many types on bad files
-        words = str(err).replace(str(path), "").strip(" :'\"") or type(err).__name__
-        raise InputError(f"{path}: cannot read mesh ({words})") from None
+        words = str(err).replace(str(path), "").strip(" :'\"")
+        raise InputError(f"{path}: cannot read it as a {suffix} mesh ({type(err).__name__}: {words})") from None
     if suffix in (".stl", ".glb", ".gltf") and len(getattr(mesh, "faces", [])):
         mesh.merge_vertices()  # these formats repeat vertices along seams or per triangle: weld them
     vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=float)
