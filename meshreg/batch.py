@@ -72,7 +72,10 @@ def prepare_surface(item, name: str | None = None, options: Options | None = Non
         options.check_grids(grid.shape)
         return Prepared(name, grid)
     except InputError as err:
-        return Prepared(name, None, str(err).removeprefix(f"{name}: "))
+        text = str(err)
+        for prefix in (f"{name}: ", f"{Path(name)}: "):  # the name is said once, by whoever reports the item
+            text = text.removeprefix(prefix)
+        return Prepared(name, None, text)
     except MemoryError:
         return Prepared(name, None, "out of memory while preparing it")
     except Exception as err:  # noqa: BLE001 - one bad item is reported and skipped, whatever failed

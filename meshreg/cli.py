@@ -250,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_RUN
     except MemoryError:
         print(
-            "meshreg: error: out of memory: lower --resolution or the grid size, or free memory (no output written)",
+            "meshreg: error: out of memory: lower --resolution, the grid size or --jobs, or free memory "
+            "(no output written)",
             file=sys.stderr,
         )
         return EXIT_RUN

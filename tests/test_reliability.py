@@ -24,7 +24,7 @@ from meshreg.errors import InputError, RunError
 from meshreg.grid import GridSurface, read_grid
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.mesh.topology import prepare_disk
-from meshreg.options import Advanced, Options
+from meshreg.options import Options
 from meshreg.result import Registration
 from meshreg.samples import bump, helicoid, paper_pairs, sample, sine
 
@@ -179,6 +179,20 @@ def test_killed_worker_costs_one_pair_and_the_rerun_completes_the_matrix(tmp_pat
         if "error" not in r:  # finished pairs were taken from the checkpoint, not recomputed
             assert result.seconds[r["i"], r["j"]] == r["seconds"]
     assert not result.failures and not checkpoint.exists()
+
+
+def test_failed_pairs_are_retried_on_resume_unless_asked_not_to(tmp_path, finished_checkpoint):
+    files, lines = finished_checkpoint
+    path = tmp_path / "c.jsonl"
+    failed = {**json.loads(lines[2]), "error": "worker process lost: killed by SIGKILL"}
+    for key in ("energy", "rotation", "seconds"):
+        failed.pop(key)
+    path.write_text("\n".join([lines[0], lines[1], json.dumps(failed), lines[3]]) + "\n")
+    kept = distance_matrix(files, jobs=1, checkpoint=path, retry_failed=False)
+    assert kept.failures == {(failed["i"], failed["j"]): failed["error"]}
+    retried = distance_matrix(files, jobs=1, checkpoint=path)
+    assert not retried.failures and np.isfinite(retried.distance).all()
+    assert retried.energy[failed["i"], failed["j"]] == json.loads(lines[2])["energy"]
 
 
 # 3. an unreadable item is reported and skipped; the rest goes on
@@ -379,22 +393,6 @@ def test_bad_matrix_parameters_one_line_before_any_work(tmp_path, grids, capsys,
     code, err = _run_main(capsys, "matrix", grids / "a.npy", grids / "b.npy", "-o", tmp_path / "D.npz", "-q", *flags)
     _one_line(err, 2, code, *words)
     assert list(tmp_path.iterdir()) == []
-
-
-@pytest.mark.parametrize(
-    "changes",
-    [
-        {"dp_rounds": 0},
-        {"damping": float("nan")},
-        {"max_iterations": -1},
-        {"step_fraction": 100.0},
-        {"rel_tol": float("nan")},
-    ],
-)
-def test_bad_numerics_through_the_api_name_the_parameter(changes):
-    pair = paper_pairs(11, 11)[0]
-    with pytest.raises(InputError, match=next(iter(changes))):
-        meshreg.register(pair.first, pair.second, advanced=Advanced(**changes))
 
 
 def test_other_api_parameters_are_checked():
