@@ -1,11 +1,12 @@
 """The ``meshreg`` command line: it parses arguments, calls the library and prints; nothing else.
 
-meshreg register FIRST SECOND -o OUT [--mode auto|dp|gd|dp+gd] [--window W] [--basis KL] ...
-meshreg matrix FILES... -o D.npz [--jobs N] [--scheduler URL] [--plot]
+meshreg register FIRST SECOND -o OUT [--mode auto|dp|gd|dp+gd] [--window W] [--basis KL] ... [--force]
+meshreg matrix FILES... -o D.npz [--jobs N] [--scheduler URL] [--plot] [--no-retry-failed] [--force]
 meshreg paper [--grid M] [--modes ...]        rerun the paper's ten pairs beside its numbers
 meshreg demo [-o OUT]                          register a sample pair and write result + figures
 
-The registration flags are generated from :data:`meshreg.options.FLAGS`.
+The registration flags are generated from :data:`meshreg.options.FLAGS`. Exit status: 0 done, 1 a run that did
+not finish its work, 2 bad input or usage, 130 Ctrl-C, 143 SIGTERM (see :func:`main`).
 """
 
 from __future__ import annotations
