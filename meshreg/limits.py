@@ -1,6 +1,6 @@
-"""What a run may cost, checked before it starts: grid sizes, the DP window, the corner search and worker processes
-against stated limits. Each refusal gives the estimate, the limit and what to change; ``force=True`` (``--force``)
-lifts these limits knowingly (the hard ranges of :class:`~meshreg.options.Options` stay).
+"""What a run may cost, checked before it starts: grid sizes, the DP window, the basis, the corner search and worker
+processes against stated limits. Each refusal gives the estimate, the limit and what to change; ``force=True``
+(``--force``) lifts these limits knowingly (the hard ranges of :class:`~meshreg.options.Options` stay).
 
 The figures behind the limits were measured on the development machine (2 cores shared with other work, so
 within a factor of two; ``/usr/bin/time`` of :func:`meshreg.register` in mode "auto" on the paper's pair 2):
@@ -11,6 +11,9 @@ within a factor of two; ``/usr/bin/time`` of :func:`meshreg.register` in mode "a
 - one DP solve (:func:`meshreg.dp.dp_surface_min`, one round) costs about :data:`DP_SECONDS_PER_PIECE` per edge
   piece it evaluates (:func:`dp_pieces`: the steps of the window times the nodes of its table); a registration
   runs several (up to ``dp_rounds`` per DP pass), so one may take at most :data:`MAX_DP_SECONDS`;
+- the basis descent holds its fields and their Jacobian as dense matrices, :func:`basis_bytes`: 1.33 GB peak for
+  ``basis`` 20 (1640 fields) on a 101 x 101 grid, 14 s of CPU in mode "dp+gd"; 4.3 GB for ``basis`` 40; so the
+  descent may need at most :data:`MAX_BASIS_BYTES`;
 - each trial corner placement costs about 0.16 s per pair (a coarse DP over the square's symmetries):
   :data:`MAX_CORNER_TRIALS` trials, 10 s per pair.
 """
@@ -26,6 +29,8 @@ from .errors import InputError
 MAX_NODES = 401 * 401  # nodes of a grid registered (memory and time above)
 MAX_DP_SECONDS = 5.0  # estimated seconds of one DP solve
 DP_SECONDS_PER_PIECE = 2.5e-9  # measured: 2.7 s for window 100 on a 101 x 101 grid (1.1e9 pieces)
+MAX_BASIS_BYTES = 2e9  # estimated memory of the basis descent
+BASIS_BYTES_PER_ENTRY = 1.6 * 8  # measured: peaks of 1.6 float64 per (field, row of the Jacobian)
 MAX_CORNER_TRIALS = 64  # trial corner placements of a round-boundary mesh
 MAX_JOBS_PER_CORE = 4  # worker processes per core of this machine
 
@@ -59,6 +64,16 @@ def dp_pieces(nodes: int, window: int) -> np.ndarray:
     return strip + np.pad(full, (0, len(strip) - len(full)), mode="edge")
 
 
+def basis_bytes(shape: tuple[int, int], basis: int) -> float:
+    """Estimated bytes of the basis descent in the Riseth basis KL = ``basis`` (2 (KL + 2 KL^2) fields) on a grid
+    of ``shape``: its work grid has at most ``COARSE_NODES`` nodes per axis, and the fields (2 per node) and the
+    Jacobian (3 per cell) are dense."""
+    from .schedule import COARSE_NODES
+
+    m, n = (min(s, COARSE_NODES) for s in shape)
+    return BASIS_BYTES_PER_ENTRY * 2 * (basis + 2 * basis**2) * (2 * m * n + 3 * (m - 1) * (n - 1))
+
+
 def check_grids(options, *shapes: tuple[int, int]) -> None:
     """Refuse (InputError) grids of more than MAX_NODES nodes and a DP window whose one DP solve on the first grid
     would take more than MAX_DP_SECONDS, unless ``options.force``. ``shapes``: (M, N) of the first grid, then the
@@ -71,7 +86,18 @@ def check_grids(options, *shapes: tuple[int, int]) -> None:
                 f"a {m} x {n} grid has {m * n} nodes, above the limit of {MAX_NODES} (401 x 401, about 1 GB per "
                 f"registration; the memory grows with the nodes): resample it or lower --resolution, {FORCE_HINT}"
             )
-    if options.mode == "gd" or not shapes:
+    if not shapes:
+        return
+    if options.mode != "dp":
+        basis = max(options.basis, options.start_basis if options.mode == "gd" else 1)
+        if basis_bytes(shapes[0], basis) > MAX_BASIS_BYTES:
+            fits = max((k for k in range(1, basis) if basis_bytes(shapes[0], k) <= MAX_BASIS_BYTES), default=1)
+            raise InputError(
+                f"basis {basis} on a {shapes[0][0]} x {shapes[0][1]} grid: its {2 * (basis + 2 * basis**2)} fields "
+                f"need about {basis_bytes(shapes[0], basis) / 1e9:.1f} GB (limit {MAX_BASIS_BYTES / 1e9:.0f} GB): "
+                f"give --basis {fits} or less, {FORCE_HINT}"
+            )
+    if options.mode == "gd":
         return
     nodes = max(shapes[0])
     seconds = DP_SECONDS_PER_PIECE * dp_pieces(nodes, options.window)

@@ -89,6 +89,21 @@ def test_limits_refuse_with_the_figure_and_force_lifts_them():
         meshreg.register(huge, huge, mode="dp")
 
 
+def test_a_basis_beyond_the_memory_limit_is_refused_and_a_wide_one_solves():
+    from meshreg.descent import DENSE_LIMIT, _solve
+
+    pair = paper_pairs(101, 101)[0]
+    with pytest.raises(
+        InputError, match=r"basis 40 on a 101 x 101 grid: its 6480 fields need about 4.2 GB.*--basis 27"
+    ):
+        meshreg.register(pair.first, pair.second, basis=40)  # before: 4.3 GB, then a crash
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(DENSE_LIMIT + 10, DENSE_LIMIT + 10))
+    normal, rhs = a @ a.T / len(a), rng.normal(size=len(a))  # a dense system: a global basis of KL >= 23
+    x = _solve(normal, np.full(len(a), 1.0), rhs, 500)
+    assert np.allclose((normal + np.eye(len(a))) @ x, rhs, atol=1e-6)
+
+
 def test_window_wider_than_the_grid_is_the_same_dp_at_its_cost():
     pair = paper_pairs(21, 21)[1]
     tic = time.perf_counter()
