@@ -73,6 +73,7 @@ def register(
     corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
     corner_search: int = DEFAULTS.corner_search,
+    force: bool = DEFAULTS.force,
     advanced: Advanced | None = None,
     callback: Progress | None = None,
 ) -> Registration:
@@ -88,6 +89,8 @@ def register(
         How to register: see :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
     resolution, weights, cleanup, corners1, corners2, corner_search
         How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
+    force : bool
+        Lift the limits on grid size, DP window, basis and corner search of :mod:`meshreg.limits`.
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
@@ -99,6 +102,12 @@ def register(
     Registration
         R, h, E and the correspondence (``correspondence``, ``vertex_pairs``, ``transform``, ``distances``,
         ``fitness``, ``inlier_rmse``).
+
+    Raises
+    ------
+    InputError
+        Bad surfaces or parameters, or a grid or window beyond the limits (see :mod:`meshreg.limits`), before
+        any computation.
 
     Examples
     --------
@@ -126,7 +135,8 @@ def register(
         corners1=corners1,
         corners2=corners2,
         corner_search=corner_search,
-        advanced=advanced or Advanced(),
+        force=force,
+        advanced=Advanced() if advanced is None else advanced,
     )
     return register_with(first, second, options, callback)
 
@@ -135,6 +145,8 @@ def register_with(first, second, options: Options, callback: Progress | None = N
     """:func:`register` with every setting in one :class:`~meshreg.options.Options` (the command line, the adapters
     and the distance matrix call this). ``first`` and ``second`` are two grids or two meshes, in any form
     :func:`meshreg.surfaces.as_input` takes."""
+    if not isinstance(options, Options):
+        raise InputError(f"options must be a meshreg.Options, got {type(options).__name__}")
     a, b = as_input(first, "first"), as_input(second, "second")
     if isinstance(a, Mesh) != isinstance(b, Mesh):
         raise InputError("give two meshes or two grids, not one of each")
@@ -148,6 +160,7 @@ def register_with(first, second, options: Options, callback: Progress | None = N
 def register_grids(first: GridSurface, second: GridSurface, options: Options, callback: Progress | None = None):
     """The registration of two grid surfaces (the core of :func:`register_with`; no :class:`Side` attached)."""
     start = time.perf_counter()
+    options.check_grids(first.shape, second.shape)
     timings = {}
     starts = [Start(0, None, float("nan"))]
     if options.mode == "auto" and options.search:
