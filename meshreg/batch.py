@@ -226,6 +226,7 @@ def distance_matrix(
     checkpoint=None,
     progress=None,
     retry_failed: bool = True,
+    preparing=None,
 ) -> DistanceMatrix:
     """All pairwise elastic distances of a collection.
 
@@ -251,6 +252,8 @@ def distance_matrix(
         ``progress(done, total)`` after every finished pair (and once at the start).
     retry_failed : bool
         When resuming, run again the pairs the checkpoint records as failed (default); False keeps them failed.
+    preparing : callable, optional
+        ``preparing(done, total)`` after each surface is prepared (read; meshes cleaned, mapped, resampled).
 
     Returns
     -------
@@ -274,7 +277,11 @@ def distance_matrix(
         names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
     if len(names) != n:
         raise InputError(f"{len(names)} names for {n} surfaces")
-    prepared = [prepare_surface(x, nm, options) for x, nm in zip(items, names, strict=True)]
+    prepared = []
+    for item, name in zip(items, names, strict=True):
+        prepared.append(prepare_surface(item, name, options))
+        if preparing is not None:
+            preparing(len(prepared), n)
     run_params = options.as_dict()
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     done = run_checkpointed(

@@ -133,22 +133,22 @@ def cmd_matrix(args) -> int:
     options = options_from_args(args)
     check_matrix(args.files, args.output, options, jobs=args.jobs, scheduler=args.scheduler)
     n = len(args.files)
-    if not args.quiet:
-        print(
-            f"preparing {n} surfaces (read; meshes cleaned, mapped to the square, resampled), then "
-            f"{n * (n - 1) // 2} pairs",
-            file=sys.stderr,
-        )
-    with tqdm(desc="pairs", unit=" pair", disable=args.quiet) as bar:
+    pairs = _count(n * (n - 1) // 2, "pair")
+    bars = {}
 
-        def progress(done, total):
-            bar.total = total
-            if bar.n == 0 and done:
-                bar.reset(total)  # resuming: count the checkpointed pairs, time only the new ones
-                bar.initial = done
-            bar.n = done
-            bar.refresh()
+    def preparing(done, total):
+        if "prepare" not in bars:
+            bars["prepare"] = tqdm(desc="preparing surfaces", total=total, unit=" surface", disable=args.quiet)
+        bars["prepare"].update(done - bars["prepare"].n)
+        if done == total:
+            bars["prepare"].close()
 
+    def progress(done, total):
+        if "pairs" not in bars:  # resuming: the checkpointed pairs are counted, only the new ones timed
+            bars["pairs"] = tqdm(desc="pairs", total=total, initial=done, unit=" pair", disable=args.quiet)
+        bars["pairs"].update(done - bars["pairs"].n)
+
+    try:
         run = matrix_files(
             args.files,
             args.output,
@@ -158,23 +158,34 @@ def cmd_matrix(args) -> int:
             plot=args.plot,
             progress=progress,
             retry_failed=args.retry_failed,
+            preparing=preparing,
         )
+    finally:
+        for bar in bars.values():
+            bar.close()
     result = run.result
     for k, reason in sorted(result.skipped.items()):
         print(f"skipped {args.files[k]}: {reason}")
     for (i, j), reason in sorted(result.failures.items()):
         if i not in result.skipped and j not in result.skipped:
             print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
-    if run.written is not None:
+    if run.reused:
         print(
-            f"{n} surfaces, {n * (n - 1) // 2} pairs -> {run.written} (distance = sqrt(E), energy, rotations, seconds)"
+            f"{run.written} already holds the finished matrix of these {_count(n, 'surface')} and parameters "
+            "(newer than every input): nothing recomputed (--force recomputes)"
         )
+    elif run.written is not None:
+        print(f"{_count(n, 'surface')}, {pairs} -> {run.written} (distance = sqrt(E), energy, rotations, seconds)")
     if run.figure is not None:
         print(f"figure         {run.figure}")
     if run.error:
         print(f"meshreg: error: {run.error}", file=sys.stderr)
         return EXIT_RUN
     return 0
+
+
+def _count(k: int, noun: str) -> str:
+    return f"{k} {noun}{'' if k == 1 else 's'}"
 
 
 def cmd_view(args) -> int:

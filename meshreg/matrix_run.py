@@ -29,12 +29,16 @@ class MatrixRun:
     checkpoint : Path or None
         The checkpoint, kept while some pair has no value (rerun the same command to retry those); None once
         every pair has one (it is then removed).
+    reused : bool
+        True when ``written`` already held this run's finished matrix (same files and parameters, newer than every
+        input, every pair with a value): nothing was recomputed.
     """
 
     result: DistanceMatrix
     written: Path | None
     figure: Path | None
     checkpoint: Path | None
+    reused: bool = False
 
     @property
     def error(self) -> str | None:
@@ -78,6 +82,7 @@ def matrix_files(
     plot: bool = False,
     progress=None,
     retry_failed: bool = True,
+    preparing=None,
 ) -> MatrixRun:
     """``meshreg matrix``: the distance matrix of files, checkpointed beside ``out`` (``.npz``) and resumed from
     there, written atomically; with ``plot`` also ``out`` with suffix ``.png``. ``scheduler`` is the address of
@@ -94,6 +99,9 @@ def matrix_files(
     jobs = check_matrix(files, out, options, jobs=jobs, scheduler=scheduler)
     checkpoint = out.with_name(out.name + CHECKPOINT_SUFFIX)
     figure_path = out.with_suffix(".png")
+    finished = None if options.force or checkpoint.exists() else _finished(out, files, options)
+    if finished is not None:
+        return MatrixRun(finished, out, _figure(finished, figure_path) if plot else None, None, reused=True)
     client = _client(scheduler) if scheduler else None
     try:
         result = distance_matrix(
@@ -104,6 +112,7 @@ def matrix_files(
             checkpoint=checkpoint,
             progress=progress,
             retry_failed=retry_failed,
+            preparing=preparing,
         )
     except KeyboardInterrupt as err:
         err.add_note(f"finished pairs are kept in {checkpoint}; rerun the same command to resume")
@@ -120,10 +129,7 @@ def matrix_files(
         raise RunError(f"{err}: the finished pairs are kept in {checkpoint}; rerun the same command") from None
     figure = None
     if plot:
-        from .viz import classical_mds, plot_matrix
-
-        embedding = classical_mds(result.distance)
-        figure = write_atomic(figure_path, lambda tmp: plot_matrix(result.names, result.distance, embedding, tmp))
+        figure = _figure(result, figure_path)
     else:
         remove_outputs(out.parent, [figure_path.name])
     if result.failures:
@@ -142,3 +148,29 @@ def _client(scheduler: str):
         return Client(scheduler, timeout="20s")
     except (OSError, TimeoutError, ValueError) as err:
         raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from None
+
+
+def _finished(out: Path, files: list[Path], options: Options) -> DistanceMatrix | None:
+    """The matrix already at ``out`` when it is this run's, finished: the same files and parameters, every pair with
+    a value, and written after the last change of every input; else None."""
+    import json
+
+    if not out.is_file() or any(f.stat().st_mtime > out.stat().st_mtime for f in files):
+        return None
+    try:
+        done = DistanceMatrix.load(out)
+    except InputError:
+        return None
+    def key(params: dict) -> str:  # force changes no result
+        return json.dumps({k: v for k, v in params.items() if k != "force"}, sort_keys=True, default=str)
+
+    same_params = key(done.params) == key(options.as_dict())
+    return done if done.names == [str(f) for f in files] and same_params and not done.failures else None
+
+
+def _figure(result: DistanceMatrix, path: Path) -> Path:
+    """The heat map, dendrogram and MDS figure of a matrix, written atomically."""
+    from .viz import classical_mds, plot_matrix
+
+    embedding = classical_mds(result.distance)
+    return write_atomic(path, lambda tmp: plot_matrix(result.names, result.distance, embedding, tmp))

@@ -393,7 +393,7 @@ FLAGS: tuple[Flag, ...] = (
         "--force",
         "force",
         "run even when the grid size, --window, --resolution, --corner-search or --jobs exceed the limits on "
-        "memory and time (the refusal states the estimate)",
+        "memory and time (the refusal states the estimate); matrix: recompute a finished matrix",
         const=True,
     ),
     Flag(

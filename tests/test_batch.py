@@ -133,3 +133,27 @@ def test_meshes_and_grids_mixed_with_round_boundaries(tmp_path):
     d = distance_matrix([(v1, f1), (v2, f2), sample(bump(), 41, 41)], Options(resolution=41), jobs=1)
     assert d.energy[0, 1] <= 0.02  # the scan and its rotated re-triangulated copy: the corner search matters
     assert d.distance[0, 2] > 3 * d.distance[0, 1] and not d.failures
+
+
+def test_a_finished_matrix_is_recognised_and_force_recomputes_it(tmp_path):
+    files = []
+    for k, pair in enumerate(paper_pairs_small()):
+        np.save(tmp_path / f"g{k}.npy", pair.first.points)
+        files.append(str(tmp_path / f"g{k}.npy"))
+    cmd = [sys.executable, "-m", "meshreg.cli", "matrix", *files, "-o", str(tmp_path / "D.npz"), "--jobs", "1"]
+    first = subprocess.run(cmd, capture_output=True, text=True)
+    assert first.returncode == 0 and "3 surfaces, 3 pairs" in first.stdout and "preparing surfaces" in first.stderr
+    stamp = (tmp_path / "D.npz").stat().st_mtime_ns
+    again = subprocess.run(cmd, capture_output=True, text=True)
+    assert again.returncode == 0 and "already holds the finished matrix" in again.stdout
+    assert (tmp_path / "D.npz").stat().st_mtime_ns == stamp  # not rewritten
+    forced = subprocess.run([*cmd, "--force"], capture_output=True, text=True)
+    assert forced.returncode == 0 and "already" not in forced.stdout and (tmp_path / "D.npz").stat().st_mtime_ns > stamp
+    other = subprocess.run([*cmd, "--window", "5"], capture_output=True, text=True)  # other parameters: recomputed
+    assert other.returncode == 0 and "already" not in other.stdout
+
+
+def paper_pairs_small():
+    from meshreg.samples import paper_pairs
+
+    return paper_pairs(11, 11)[:3]
