@@ -19,6 +19,9 @@ Examples
 
 from __future__ import annotations
 
+import os
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -40,14 +43,33 @@ LAYER_NAMES = {
 }
 
 
+@contextmanager
+def _quiet():
+    """Silence what pymeshlab's C++ code prints (one "Reading filter ..." line per filter of a script, on the
+    process's standard error) while the block runs; failures still arrive as Python exceptions."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
 def _prepare_current(ms) -> None:
     """Run ``prepare_scan.mlx`` on the current mesh, then close its holes of fewer edges than both
     MAX_HOLE_EDGES and its longest boundary (the outer boundary of a disk is never closed)."""
-    ms.load_filter_script(str(PREPARE_SCRIPT))
-    try:
-        ms.apply_filter_script()
-    finally:
-        ms.clear_filter_script()
+    with _quiet():
+        ms.load_filter_script(str(PREPARE_SCRIPT))
+        try:
+            ms.apply_filter_script()
+        finally:
+            ms.clear_filter_script()
     sizes = boundary_sizes(ms.current_mesh().face_matrix())
     if len(sizes) > 1:
         ms.apply_filter("meshing_close_holes", maxholesize=min(MAX_HOLE_EDGES, sizes[0] - 1), selfintersection=True)
