@@ -21,10 +21,12 @@ within a factor of two; ``/usr/bin/time`` of :func:`meshreg.register` in mode "a
 from __future__ import annotations
 
 import os
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from .errors import InputError
+
+if TYPE_CHECKING:  # numpy is imported where used: Options are checked here, and `meshreg --help` needs no numpy
+    import numpy as np
 
 MAX_NODES = 401 * 401  # nodes of a grid registered (memory and time above)
 MAX_DP_SECONDS = 5.0  # estimated seconds of one DP solve
@@ -45,6 +47,8 @@ def dp_pieces(nodes: int, window: int) -> np.ndarray:
     more than ``DP_FULL_NODES`` nodes run the coarse-to-fine DP of :func:`meshreg.dp.dp_surface_min`: a full table
     on about ``DP_STRIP_NODES`` nodes, then a strip of 4 c + 2 entries per row (c = nodes // DP_STRIP_NODES).
     """
+    import numpy as np
+
     from .dp import steps
     from .schedule import DP_FULL_NODES, DP_STRIP_NODES
 
@@ -78,6 +82,8 @@ def check_grids(options, *shapes: tuple[int, int]) -> None:
     """Refuse (InputError) grids of more than MAX_NODES nodes and a DP window whose one DP solve on the first grid
     would take more than MAX_DP_SECONDS, unless ``options.force``. ``shapes``: (M, N) of the first grid, then the
     others of the run."""
+    import numpy as np
+
     if options.force:
         return
     for m, n in shapes:
