@@ -62,6 +62,11 @@ def _summary(written) -> str:
     if np.isfinite(result.energy_dp):
         rows.append(f"E after DP     {result.energy_dp:.6g}")
     rows.append(
+        f"residual       {result.residual:.4g}   (RMS of R c1 - c2 o h, both centred and at area 1; "
+        f"{result.residual_mirrored:.4g} against the mirror image)"
+    )
+    rows += [f"note           {line}" for line in result.correspondence_notes()]
+    rows.append(
         "rotation R     "
         + np.array2string(result.rotation, precision=4, suppress_small=True).replace("\n", "\n               ")
     )

@@ -27,6 +27,7 @@ def plot_registration(
     path,
     title: str = "",
     stages=(),
+    notes=(),
 ) -> Path:
     """Write a PNG: R c1 and c2 o h overlaid (boundaries and iso-lines, each centred), where on the square they
     differ, and E per accepted step with the stages marked.
@@ -45,6 +46,9 @@ def plot_registration(
     stages : sequence of str, optional
         The stage of each entry of ``history`` (:attr:`meshreg.Registration.energy_stages`); stage changes are
         marked on the energy curve.
+    notes : sequence of str, optional
+        Lines written under the panels (:meth:`meshreg.Registration.correspondence_notes`: an ambiguous or
+        mirrored correspondence).
     """
     first = first_rotated - first_rotated.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay them
     second = second_registered - second_registered.reshape(-1, 3).mean(axis=0)
@@ -77,6 +81,10 @@ def plot_registration(
     curve.set_title(f"energy: {energies[0]:.3g} -> {energies[-1]:.3g}", fontsize=10)
     curve.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
+    for k, line in enumerate(notes):
+        fig.text(0.01, 0.01 + 0.035 * k, line, fontsize=9, color="tab:red", wrap=True)
+    if notes:
+        fig.subplots_adjust(bottom=0.12 + 0.035 * len(notes))
     path = Path(path)
     fig.savefig(path, dpi=110)
     return path

@@ -60,7 +60,7 @@ def register_meshes(
         Two disk-topology meshes: files, ``trimesh.Trimesh``, Open3D ``TriangleMesh`` or (vertices (n, 3), faces
         (m, 3)); see :func:`meshreg.surfaces.as_input`.
     options : Options, optional
-        Mesh preparation (``resolution``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
+        Mesh preparation (``resolution``, ``antialias``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
         ``corner_search``) and registration settings (default mode "auto", which tries the 8 symmetries of
         the square: which corner of the boundary became (0, 0) does not matter).
     callback : callable, optional
@@ -94,7 +94,7 @@ def register_meshes(
         uvs.append(uv)
         infos[name].update(info)
     n = options.resolution
-    grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
     result = register_grids(grids[0], grids[1], options, callback)
     sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=_json_ready(infos))
