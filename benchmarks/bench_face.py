@@ -34,7 +34,7 @@ def main():
         tic = time.perf_counter()
         mr = register_meshes((v1, f1), (v2, f2), options)
         seconds = time.perf_counter() - tic
-        errors = face_scan_errors(mr, xy)
+        errors = face_scan_errors(mr.result, (v1, f1), xy)
         median, p90 = np.nanmedian(errors), np.nanpercentile(errors, 90)
         angle = angle_between(mr.result.rotation, rotation)
         print(

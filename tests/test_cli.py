@@ -219,6 +219,13 @@ MESH_FLAG_CASES = {
     "--solver": (["--solver", "gradient"], lambda r: r.params["solver"] == "gradient"),
     "--refine": (["--refine", "none"], lambda r: r.params["refine"] == "none" and "refine" not in r.timings),
     "--max-starts": (["--max-starts", "1"], lambda r: len(r.params["starts"]) == 1),
+    "--keep-orientation": (
+        ["--keep-orientation"],
+        lambda r: (
+            r.params["keep_orientation"] is True and all(s["symmetry"] in (0, 3, 5, 6) for s in r.params["starts"])
+        ),
+    ),
+    "--force": (["--force"], lambda r: r.params["force"] is True),
     "--symmetry": (
         ["--symmetry", "0"],
         lambda r: r.symmetry == 0 and {s["symmetry"] for s in r.params["starts"]} == {0},

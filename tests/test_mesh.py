@@ -88,7 +88,7 @@ def test_face_scan_at_the_default_resolution_converges():
     mr = register_meshes((v1, f1), (v2, f2), Options())
     assert mr.result.energy <= 0.02
     assert angle_between(mr.result.rotation, rot) < 1.0
-    assert np.nanmedian(face_scan_errors(mr, xy)) <= 0.005
+    assert np.nanmedian(face_scan_errors(mr.result, (v1, f1), xy)) <= 0.005
     assert not mr.result.mirrored
 
 
