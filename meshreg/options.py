@@ -186,10 +186,10 @@ class Options:
         Mode "auto" with ``search``: also try the 8 symmetries of the square on the second surface. Default True.
     keep_orientation : bool
         Mode "auto" with ``symmetries``: try only the 4 symmetries that keep orientation (the rotations of the
-        square), so that the front side of each surface stays its front side. For meshes whose faces are wound
-        consistently (a cohort from one pipeline): nearly mirror-symmetric sheets otherwise admit a mirrored,
-        upside-down match whose E is within a few percent of the right one. Default False (a mesh wound the
-        other way, or a grid with r and t swapped, is matched too).
+        square), so that the front side of each surface stays its front side: for meshes whose faces are wound
+        consistently (a cohort from one pipeline), half the start search is then saved, and a member is never
+        matched back to front. Default False (a mesh wound the other way, or a grid with r and t swapped, is
+        matched too; matches on the mirror image are rejected by the residual either way).
     max_starts : int
         Mode "auto": most ranked starts registered in full (see ``Advanced.start_margin``). Default 3.
     symmetry : int or None
