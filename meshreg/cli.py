@@ -1,25 +1,46 @@
 """The ``meshreg`` command line: it parses arguments, calls the library and prints; nothing else.
 
-meshreg register FIRST SECOND -o OUT [--mode auto|dp|gd|dp+gd] [--window W] [--basis KL] ...
-meshreg matrix FILES... -o D.npz [--jobs N] [--scheduler URL] [--plot]
+meshreg register FIRST SECOND -o OUT [--mode auto|dp|gd|dp+gd] [--window W] [--basis KL] ... [--force]
+meshreg matrix FILES... -o D.npz [--jobs N] [--scheduler URL] [--plot] [--no-retry-failed] [--force]
 meshreg atlas FILES... -o OUT [--jobs N] [--scheduler URL] [--modes K] ...   template, one connectivity, modes
 meshreg atlas --demo -o OUT                    the atlas of a family of deformed terrain patches
 meshreg morph A B -o morph.gif | meshreg morph OUT/atlas.npz --mode 1 -o mode1.gif
 meshreg paper [--grid M] [--modes ...]        rerun the paper's ten pairs beside its numbers
 meshreg demo [-o OUT]                          register a sample pair and write result + figures
 
-The registration flags are generated from :data:`meshreg.options.FLAGS`.
+The registration flags are generated from :data:`meshreg.flags.FLAGS`. Exit status: 0 done, 1 a run that did
+not finish its work, 2 bad input or usage, 130 Ctrl-C, 143 SIGTERM (see :func:`main`).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from . import __version__
-from .errors import InputError
+from .errors import InputError, RunError
+from .report import atlas_summary, count, summary
+
+EXIT_RUN, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 2, 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the run stops its workers and says where its finished work is."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line (with where to find the usage), exit status 2."""
+
+    def error(self, message):
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _progress_callback(bar):
@@ -29,29 +50,6 @@ def _progress_callback(bar):
         bar.update(1)
 
     return callback
-
-
-def _summary(written) -> str:
-    import numpy as np
-
-    result = written.result
-    rows = [
-        f"energy E       {result.energy:.6g}   (squared elastic distance, both surfaces at area 1)",
-        f"distance       {result.distance:.6g}   (sqrt(E))",
-    ]
-    if np.isfinite(result.energy_dp):
-        rows.append(f"E after DP     {result.energy_dp:.6g}")
-    rows.append(
-        "rotation R     "
-        + np.array2string(result.rotation, precision=4, suppress_small=True).replace("\n", "\n               ")
-    )
-    rows.append("time (s)       " + ", ".join(f"{k} {v:.2f}" for k, v in result.timings.items()))
-    if written.reverse is not None:
-        reverse = written.reverse
-        rows.append(f"reverse E      {reverse.energy:.6g}   (second rotated, first reparametrized)")
-        rows.append(f"mean E         {0.5 * (result.energy + reverse.energy):.6g}")
-    rows.append("written        " + ", ".join(str(f) for f in written.files))
-    return "\n".join(rows)
 
 
 def _registering(quiet: bool):
@@ -70,7 +68,7 @@ def _kernels_cached() -> bool:
 
 
 def cmd_register(args) -> int:
-    from .options import options_from_args
+    from .flags import options_from_args
     from .outputs import register_files
 
     options = options_from_args(args)
@@ -87,7 +85,7 @@ def cmd_register(args) -> int:
         )
     for note in written.notes:
         print(note)
-    print(_summary(written))
+    print(summary(written))
     return 0
 
 
@@ -100,35 +98,36 @@ def cmd_demo(args) -> int:
         written = run_demo(args.output, callback=_progress_callback(bar))
     for note in written.notes:
         print(note)
-    print(_summary(written))
+    print(summary(written))
     return 0
 
 
 def cmd_matrix(args) -> int:
     from tqdm import tqdm
 
-    from .batch import matrix_files
-    from .options import options_from_args
+    from .flags import options_from_args
+    from .matrix_run import check_matrix, matrix_files
 
     options = options_from_args(args)
+    check_matrix(args.files, args.output, options, jobs=args.jobs, scheduler=args.scheduler)
     n = len(args.files)
-    if not args.quiet:
-        print(
-            f"preparing {n} surfaces (read; meshes cleaned, mapped to the square, resampled), then "
-            f"{n * (n - 1) // 2} pairs",
-            file=sys.stderr,
-        )
-    with tqdm(desc="pairs", unit=" pair", disable=args.quiet) as bar:
+    pairs = count(n * (n - 1) // 2, "pair")
+    bars = {}
 
-        def progress(done, total):
-            bar.total = total
-            if bar.n == 0 and done:
-                bar.reset(total)  # resuming: count the checkpointed pairs, time only the new ones
-                bar.initial = done
-            bar.n = done
-            bar.refresh()
+    def preparing(done, total):
+        if "prepare" not in bars:
+            bars["prepare"] = tqdm(desc="preparing surfaces", total=total, unit=" surface", disable=args.quiet)
+        bars["prepare"].update(done - bars["prepare"].n)
+        if done == total:
+            bars["prepare"].close()
 
-        result, figure = matrix_files(
+    def progress(done, total):
+        if "pairs" not in bars:  # resuming: the checkpointed pairs are counted, only the new ones timed
+            bars["pairs"] = tqdm(desc="pairs", total=total, initial=done, unit=" pair", disable=args.quiet)
+        bars["pairs"].update(done - bars["pairs"].n)
+
+    try:
+        run = matrix_files(
             args.files,
             args.output,
             options,
@@ -136,12 +135,30 @@ def cmd_matrix(args) -> int:
             scheduler=args.scheduler,
             plot=args.plot,
             progress=progress,
+            retry_failed=args.retry_failed,
+            preparing=preparing,
         )
-    print(f"{n} surfaces, {n * (n - 1) // 2} pairs -> {args.output} (distance = sqrt(E), energy, rotations, seconds)")
+    finally:
+        for bar in bars.values():
+            bar.close()
+    result = run.result
+    for k, reason in sorted(result.skipped.items()):
+        print(f"skipped {args.files[k]}: {reason}")
     for (i, j), reason in sorted(result.failures.items()):
-        print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
-    if figure is not None:
-        print(f"figure         {figure}")
+        if i not in result.skipped and j not in result.skipped:
+            print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
+    if run.reused:
+        print(
+            f"{run.written} already holds the finished matrix of these {count(n, 'surface')} and parameters "
+            "(newer than every input): nothing recomputed (--force recomputes)"
+        )
+    elif run.written is not None:
+        print(f"{count(n, 'surface')}, {pairs} -> {run.written} (distance = sqrt(E), energy, rotations, seconds)")
+    if run.figure is not None:
+        print(f"figure         {run.figure}")
+    if run.error:
+        print(f"meshreg: error: {run.error}", file=sys.stderr)
+        return EXIT_RUN
     return 0
 
 
@@ -173,42 +190,10 @@ def _stage_bars(quiet: bool):
     return progress, close
 
 
-def _atlas_summary(written) -> str:
-    result = written.atlas
-    k = len(result.explained)
-    rows = [
-        f"members        {len(result.names)} kept, {len(result.failures)} left out; medoid {result.medoid}",
-        f"template       {result.grid[0]} x {result.grid[1]} grid ({len(result.template)} vertices, "
-        f"{len(result.faces)} triangles), shared by every aligned member",
-        "mean E         "
-        + " -> ".join(f"{e:.4g}" for e in result.objective)
-        + f"   (per iteration; kept iteration {result.params['kept_iteration']}"
-        + ("" if result.params["converged"] else ", not converged: raise --max-iterations")
-        + ")",
-        f"karcher gap    {result.params['karcher_gap']:.3g}   (share of mean E the q-space mean would remove)",
-        f"spread         {100 * result.params['spread']:.3g}% of the template's size (RMS distance of the aligned "
-        "members' vertices from the mean's, sizes equalized)",
-        "explained      "
-        + ", ".join(f"mode {m + 1} {100 * e:.1f}%" for m, e in enumerate(result.explained[: min(k, 5)])),
-        f"time (s)       total {result.timings['total']:.1f}, per member {result.timings['per_member']:.2f} "
-        f"(medoid {result.timings['medoid']:.1f}, iterations {result.timings['iterations']:.1f})",
-    ]
-    for name, reason in result.failures.items():
-        rows.append(f"left out       {name}: {reason}")
-    if written.correlations is not None:
-        rows.append(
-            "known params   canonical correlations of modes 1-2 scores with (relief, uplift): "
-            + ", ".join(f"{c:.3f}" for c in written.correlations)
-        )
-    shown = [f for f in written.files if f.parent.name != "aligned"]
-    rows.append("written        " + ", ".join(str(f) for f in shown) + f", aligned/ ({len(result.names)} PLY)")
-    return "\n".join(rows)
-
-
 def cmd_atlas(args) -> int:
     from .atlas_outputs import atlas_demo, atlas_files
     from .atlas_settings import ATLAS_RESOLUTION, AtlasSettings
-    from .options import options_from_args
+    from .flags import options_from_args
 
     progress, close = _stage_bars(args.quiet)
     try:
@@ -235,7 +220,7 @@ def cmd_atlas(args) -> int:
             )
     finally:
         close()
-    print(_atlas_summary(written))
+    print(atlas_summary(written))
     return 0
 
 
@@ -256,7 +241,7 @@ def cmd_paper(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="meshreg", description="Elastic shape registration of surfaces.")
+    parser = _Parser(prog="meshreg", description="Elastic shape registration of surfaces.")
     parser.add_argument("--version", action="version", version=f"meshreg {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (_add_register, _add_view, _add_demo, _add_matrix, _add_atlas, _add_morph, _add_paper):
@@ -265,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_register(sub) -> None:
-    from .options import add_flags
+    from .flags import add_flags
 
     reg = sub.add_parser("register", help="register two surfaces (two disk meshes or two grid files)")
     reg.add_argument(
@@ -305,7 +290,7 @@ def _add_demo(sub) -> None:
 
 
 def _add_matrix(sub) -> None:
-    from .options import add_flags
+    from .flags import add_flags
 
     matrix = sub.add_parser("matrix", help="pairwise elastic distances of a collection (grids and/or meshes)")
     matrix.add_argument("files", nargs="+", help="grid files and/or meshes")
@@ -315,6 +300,12 @@ def _add_matrix(sub) -> None:
     matrix.add_argument("--jobs", type=int, default=None, help="local worker processes (default: all cores)")
     matrix.add_argument("--scheduler", help="a dask.distributed scheduler address, e.g. tcp://host:8786")
     matrix.add_argument("--plot", action="store_true", help="also write OUTPUT.png: heat map, dendrogram, MDS")
+    matrix.add_argument(
+        "--retry-failed",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="when resuming, run again the pairs that failed before (default; --no-retry-failed keeps them failed)",
+    )
     add_flags(matrix, groups=("registration", "meshes"))
     matrix.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     matrix.set_defaults(func=cmd_matrix)
@@ -322,7 +313,7 @@ def _add_matrix(sub) -> None:
 
 def _add_atlas(sub) -> None:
     from .atlas_settings import ATLAS_RESOLUTION, AtlasSettings
-    from .options import add_flags
+    from .flags import add_flags
 
     defaults = AtlasSettings()
     atlas = sub.add_parser(
@@ -385,19 +376,43 @@ def _add_paper(sub) -> None:
     paper.set_defaults(func=cmd_paper)
 
 
+def _line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run a command; returns the exit status: 0 done, 1 a run that did not finish its work (RunError, pairs
+    without a value, out of memory), 2 bad input (InputError, usage), 130 Ctrl-C, 143 SIGTERM. Each error is one
+    line on stderr; only an unexpected exception (a bug) shows a traceback."""
     args = build_parser().parse_args(argv)
+    previous = signal.getsignal(signal.SIGTERM)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
     except InputError as err:
-        print(f"meshreg: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("meshreg: interrupted", file=sys.stderr)
-        return 130
+        print(f"meshreg: error: {_line(err)}", file=sys.stderr)
+        return EXIT_INPUT
+    except RunError as err:
+        print(f"meshreg: error: {_line(err)}", file=sys.stderr)
+        return EXIT_RUN
+    except MemoryError:
+        print(
+            "meshreg: error: out of memory: lower --resolution, the grid size or --jobs, or free memory "
+            "(no output written)",
+            file=sys.stderr,
+        )
+        return EXIT_RUN
+    except KeyboardInterrupt as err:
+        notes = "; ".join(getattr(err, "__notes__", []))
+        print(f"meshreg: interrupted{': ' + notes if notes else ''}", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(err, Terminated) else EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader of our output went away (`meshreg ... | head`): nothing left to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ def plot_registration(
     path,
     title: str = "",
     stages=(),
+    notes=(),
 ) -> Path:
     """Write a PNG: R c1 and c2 o h overlaid (boundaries and iso-lines, each centred), where on the square they
     differ, and E per accepted step with the stages marked.
@@ -45,6 +46,9 @@ def plot_registration(
     stages : sequence of str, optional
         The stage of each entry of ``history`` (:attr:`meshreg.Registration.energy_stages`); stage changes are
         marked on the energy curve.
+    notes : sequence of str, optional
+        Lines written under the panels (:meth:`meshreg.Registration.correspondence_notes`: an ambiguous or
+        mirrored correspondence).
     """
     first = first_rotated - first_rotated.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay them
     second = second_registered - second_registered.reshape(-1, 3).mean(axis=0)
@@ -77,8 +81,21 @@ def plot_registration(
     curve.set_title(f"energy: {energies[0]:.3g} -> {energies[-1]:.3g}", fontsize=10)
     curve.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
+    for k, line in enumerate(notes):
+        fig.text(0.01, 0.01 + 0.035 * k, line, fontsize=9, color="tab:red", wrap=True)
+    if notes:
+        fig.subplots_adjust(bottom=0.12 + 0.035 * len(notes))
     path = Path(path)
     fig.savefig(path, dpi=110)
+    return path
+
+
+def _save(fig: Figure, path, title: str, dpi: int) -> Path:
+    """Title the figure, lay it out and write it to ``path`` (PNG)."""
+    fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
     return path
 
 
@@ -201,11 +218,7 @@ def plot_meshes(
         _draw_mesh(ax, (v1 - v1.mean(axis=0)) @ view.T, f1, colors, "distance to the corresponding point")
         bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), ax=ax, shrink=0.6, pad=0.02)
         bar.set_label("fraction of sqrt(area)")
-    fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    return path
+    return _save(fig, path, title or "corresponding points share a colour and a checkerboard square", dpi=110)
 
 
 def _draw_mesh(ax, points: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, title: str) -> None:
@@ -308,11 +321,7 @@ def plot_modes(mean: np.ndarray, modes: np.ndarray, deviations: np.ndarray, face
         ax = fig.add_subplot(1, 1, 1, projection="3d")
         _draw_surface(ax, turned[0], faces, np.zeros(len(mean)), 1.0, box)
         ax.set_title("mean (no variation)")
-    fig.suptitle(title or "modes of variation")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=80)
-    return path
+    return _save(fig, path, title or "modes of variation", dpi=80)
 
 
 def plot_scores(scores: np.ndarray, explained: np.ndarray, names, path, title: str = "") -> Path:
@@ -337,11 +346,7 @@ def plot_scores(scores: np.ndarray, explained: np.ndarray, names, path, title: s
     bars.set_ylabel("explained variance (%)")
     bars.set_ylim(0, 100)
     bars.legend(loc="center right")
-    fig.suptitle(title or f"{len(labels)} members: scores on the principal modes")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    return path
+    return _save(fig, path, title or f"{len(labels)} members: scores on the principal modes", dpi=90)
 
 
 def write_morph(frames: np.ndarray, faces: np.ndarray, path, fps: int = 12, title: str = "") -> Path:

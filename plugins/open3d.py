@@ -44,6 +44,11 @@ class ElasticRegistrationResult:
         E, the squared elastic shape distance (both surfaces at area 1).
     distance : float
         sqrt(E).
+    residual : float
+        The coordinate residual: RMS of R c1 - c2 o h on both grids, centred and at area 1
+        (:attr:`meshreg.Registration.residual`).
+    alternatives : list of dict
+        Other correspondences as good as this one (a symmetric shape; :attr:`meshreg.Registration.alternatives`).
     source_colored, target_colored : open3d.geometry.TriangleMesh
         Copies of the inputs with vertex_colors: corresponding points share a colour.
     registered : open3d.geometry.TriangleMesh
@@ -58,13 +63,19 @@ class ElasticRegistrationResult:
     inlier_rmse: float
     energy: float
     distance: float
+    residual: float
+    alternatives: list
     source_colored: object
     target_colored: object
     registered: object
     registration: Registration
 
 
-def _arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
+def _arrays(mesh, name: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (n, 3) and triangles (m, 3) of an ``open3d.geometry.TriangleMesh``; TypeError for anything else."""
+    if not isinstance(mesh, o3d.geometry.TriangleMesh):
+        hint = " (convert a tensor mesh with .to_legacy())" if isinstance(mesh, o3d.t.geometry.TriangleMesh) else ""
+        raise TypeError(f"{name} must be an open3d.geometry.TriangleMesh, got {type(mesh).__name__}{hint}")
     return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.triangles, dtype=np.int64)
 
 
@@ -83,8 +94,17 @@ def register(source, target, options: Options | None = None) -> ElasticRegistrat
         Disk-topology meshes (cleanup as in :func:`meshreg.mesh.prepare_disk`); neither is modified.
     options : meshreg.Options, optional
         Mesh preparation and registration settings (resolution, weights, corners1/2, mode, window, ...).
+
+    Raises
+    ------
+    TypeError
+        ``source`` or ``target`` is not an ``open3d.geometry.TriangleMesh`` (None, a point cloud, a tuple).
+    meshreg.InputError
+        A mesh that cannot be made a disk (no triangles, all degenerate, closed, ...) or bad options.
     """
-    mr, c1, c2, (rv, rf, rc) = register_arrays(_arrays(source), _arrays(target), options)
+    mr, c1, c2, (rv, rf, rc) = register_arrays(
+        _arrays(source, "source"), _arrays(target, "target"), options, names=("source", "target")
+    )
     registered = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(rv), o3d.utility.Vector3iVector(rf.astype(np.int32))
     )
@@ -96,6 +116,8 @@ def register(source, target, options: Options | None = None) -> ElasticRegistrat
         inlier_rmse=mr.result.inlier_rmse(),
         energy=mr.result.energy,
         distance=mr.result.distance,
+        residual=mr.result.residual,
+        alternatives=mr.result.alternatives,
         source_colored=_colored(source, c1),
         target_colored=_colored(target, c2),
         registered=registered,

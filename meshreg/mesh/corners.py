@@ -14,7 +14,7 @@ from ..grid import GridSurface
 from ..options import Options
 from ..search import best_start
 from .harmonic import HarmonicMap, arc_fraction, choose_corners, has_sharp_corners, quarter_corners
-from .resample import resample_grid
+from .resample import DEFAULT_ANTIALIAS, resample_grid
 from .topology import DiskMesh, prepare_disk
 
 CORNER_SEARCH_GRID = 21  # coarse grid on which the trial placements are ranked
@@ -35,8 +35,10 @@ def placement_corners(disk: DiskMesh, trials: int) -> list[np.ndarray]:
 
 def placement_energy(coarse1, coarse2, keep_orientation: bool = False) -> float:
     """Rank of a corner placement: the best coarse DP energy over the square's symmetries (those that keep
-    orientation with ``keep_orientation``) and rotations."""
-    return best_start(coarse1, coarse2, keep_orientation=keep_orientation)[0].energy
+    orientation with ``keep_orientation``) and rotations, of a match that is not mirrored
+    (:func:`meshreg.search.best_start`)."""
+    starts = best_start(coarse1, coarse2, keep_orientation=keep_orientation)
+    return next((s.energy for s in starts if not s.mirrored), float("inf"))
 
 
 def best_placement(first: GridSurface, placements: list[GridSurface], keep_orientation: bool = False) -> int:
@@ -58,16 +60,23 @@ def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Op
     if not search:
         return pos, None
     pos[0] = placement_corners(disks[0], 1)[0]
-    pos[1], tried = search_corners(maps[0], pos[0], maps[1], options.corner_search, options.keep_orientation)
+    pos[1], tried = search_corners(
+        maps[0], pos[0], maps[1], options.corner_search, options.keep_orientation, options.antialias
+    )
     return pos, tried
 
 
 def search_corners(
-    first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, trials: int = 8, keep_orientation: bool = False
+    first: HarmonicMap,
+    corners1: np.ndarray,
+    second: HarmonicMap,
+    trials: int = 8,
+    keep_orientation: bool = False,
+    antialias: int = DEFAULT_ANTIALIAS,
 ) -> tuple[np.ndarray, list]:
     """Corners of the second mesh that best match the first's: the ``trials`` placements of
     :func:`placement_starts`, then one halving step around the best, ranked by :func:`placement_energy`
-    on 21 x 21 grids.
+    on 21 x 21 grids (resampled with ``antialias``, see :func:`~meshreg.mesh.resample.resample_grid`).
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
     different places, and no reparametrization that keeps the corners can undo that. This finds them.
@@ -76,11 +85,12 @@ def search_corners(
     """
     n = CORNER_SEARCH_GRID
     disk1, disk2 = first.disk, second.disk
-    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n)
+    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n, antialias)
 
     def energy(start):
         uv = second(quarter_corners(disk2, start))[0]
-        return placement_energy(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n), keep_orientation)
+        grid = resample_grid(disk2.vertices, disk2.faces, uv, n, n, antialias)
+        return placement_energy(coarse1, grid, keep_orientation)
 
     starts = placement_starts(disk2, trials)
     tried = [(start, energy(start)) for start in starts]
@@ -92,7 +102,7 @@ def search_corners(
 
 def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options):
     """One mesh, on its own, to grid surfaces: clean, map to the square, resample on grids of
-    ``options.resolution`` nodes per axis (``options.cleanup``, ``options.weights``).
+    ``options.resolution`` nodes per axis (``options.cleanup``, ``options.weights``, ``options.antialias``).
 
     With four clear corners (or ``options.corner_search=0``), one grid (corners by
     :func:`~meshreg.mesh.harmonic.choose_corners`); else one grid per trial corner placement of
@@ -109,5 +119,5 @@ def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options):
         placements = [choose_corners(disk)]
     maps = [hmap(corners) for corners in placements]
     n = options.resolution
-    grids = [resample_grid(disk.vertices, disk.faces, uv, n, n) for uv, _ in maps]
+    grids = [resample_grid(disk.vertices, disk.faces, uv, n, n, options.antialias) for uv, _ in maps]
     return grids, {**maps[0][1], "cleanup": disk.report}

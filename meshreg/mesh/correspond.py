@@ -52,7 +52,7 @@ class MeshRegistration:
 
 
 def register_meshes(
-    first, second, options: Options | None = None, callback: Progress | None = None
+    first, second, options: Options | None = None, callback: Progress | None = None, names=("first mesh", "second mesh")
 ) -> MeshRegistration:
     """Register two meshes given as (vertices (n, 3), faces (m, 3)): clean, parametrize, resample, register.
 
@@ -62,16 +62,20 @@ def register_meshes(
         Two disk-topology meshes: files, ``trimesh.Trimesh``, Open3D ``TriangleMesh`` or (vertices (n, 3), faces
         (m, 3)); see :func:`meshreg.surfaces.as_input`.
     options : Options, optional
-        Mesh preparation (``resolution``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
+        Mesh preparation (``resolution``, ``antialias``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
         ``corner_search``) and registration settings (default mode "auto", which tries the 8 symmetries of
         the square: which corner of the boundary became (0, 0) does not matter).
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
+    names : (str, str)
+        What to call the meshes in error messages when they are not files (files are called by their paths).
     """
     from ..surfaces import Mesh, as_input
 
     options = options or Options()
-    meshes = [as_input(first, "first"), as_input(second, "second")]
+    side = (options.resolution, options.resolution)
+    options.check_grids(side, side)
+    meshes = [as_input(mesh, name) for mesh, name in zip((first, second), names, strict=True)]
     if not all(isinstance(m, Mesh) for m in meshes):
         raise InputError("register_meshes takes two meshes")
     disks, maps, infos = [], [], {}
@@ -125,7 +129,7 @@ def register_disks(
         uvs.append(uv)
         infos[name].update(info)
     n = options.resolution
-    grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
     result = register_grids(grids[0], grids[1], options, callback)
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
