@@ -12,7 +12,7 @@ from meshreg.mesh import deform
 from meshreg.mesh.align import align
 from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.export import UNMATCHED, colored_outputs
-from meshreg.mesh.overlap import clip, rigid_overlap, signed_rim_distance, trim
+from meshreg.mesh.overlap import clip, rigid_overlap, signed_rim_distance, slide, trim
 from meshreg.mesh.surface import Surface, transform_points
 from meshreg.mesh.topology import prepare_disk, triangle_areas
 from meshreg.result import Registration
@@ -101,6 +101,20 @@ def test_two_halves_of_one_surface_overlap_by_half_in_any_pose():
     # within a triangle (0.1% of the area): the other's cleanup cut an ear off its corner on the shared band
     assert found.first.fraction == pytest.approx(shares[0], abs=2e-3)
     assert found.second.fraction == pytest.approx(shares[1], abs=2e-3)
+
+
+def test_slide_is_large_where_a_rigid_motion_slides_along_the_surface():
+    # how far a pose can slide within a given fit noise: finite where relief pins every motion, less with more relief;
+    # large on a surface of revolution (a turn about its axis; pinned only by the grid's facets); infinite on a plane
+    v, f = grid_mesh(0.0, 1.0, 41, relief=0.15)
+    everywhere = np.ones(len(v), dtype=bool)
+    relief, steeper, bowl, flat = v.copy(), v.copy(), v.copy(), v.copy()
+    steeper[:, 2] *= 3.0
+    bowl[:, 2] = (v[:, 0] - 0.5) ** 2 + (v[:, 1] - 0.5) ** 2
+    flat[:, 2] = 0.0
+    slid = [slide(Surface(x, f), everywhere, 1e-3) for x in (relief, steeper, bowl, flat)]
+    assert slid[1] < slid[0] < slid[2] / 5 and slid[3] == np.inf
+    assert slide(Surface(relief, f), everywhere, 0.0) == 0.0
 
 
 @pytest.mark.parametrize("flip", [False, True])

@@ -110,6 +110,8 @@ def fpfh(cloud: Cloud, radius: float) -> np.ndarray:
     """Fast point feature histograms (k, 33) of a cloud with normals (Rusu, Blodow & Beetz 2009; as Open3D
     computes them: 11 bins per angle, neighbours within ``radius``, weights 1 / squared distance)."""
     p, n = cloud.points, cloud.normals
+    if len(p) < 2:  # a mesh about one voxel across: no neighbours, empty histograms
+        return np.zeros((len(p), 3 * FPFH_BINS))
     k = min(FPFH_NEIGHBOURS + 1, len(p))
     dist, idx = cKDTree(p).query(p, k=k, distance_upper_bound=radius)
     valid = np.isfinite(dist) & (dist > 0)

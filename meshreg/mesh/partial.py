@@ -83,7 +83,7 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     else:  # the same surface: the pose itself
         transform = np.linalg.inv(pose)
         rotation = transform[:3, :3] / np.cbrt(np.linalg.det(transform[:3, :3]))
-    energy = objective.energy(rotation, h)
+    energy, residual = objective.evaluate(rotation, h)
     infos = {name: dict(info) for name, info in infos.items()}
     for name, disk in (("first", trimmed1), ("second", trimmed2)):
         infos[name]["overlap"] = disk.report
@@ -105,6 +105,8 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
         symmetry=0,
         energy_stages=("overlap",),
         transform=transform,
+        residual=residual.plus,
+        residual_mirrored=residual.minus,
     )
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip((trimmed1, trimmed2), (uv1, uv2), n_input, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
