@@ -103,6 +103,12 @@ class Advanced:
         ``rel_tol`` of the refinement levels. Default 1e-2: on the paper's different-shape pairs the levels
         otherwise spend two thirds of their time on 0.2% steps; same-shape pairs, whose E falls by orders of
         magnitude, are not affected.
+    choice_window : float
+        Meshes with ``Options.bend_window`` > 0: width (side lengths of the square) of the windows of E_w that
+        ranks the symmetries of the square and the corner placements of round boundaries
+        (:mod:`meshreg.bending`). Wider windows see larger relief (more telling) but charge more of the bending.
+        Default 0.2: on the benchmark's pairs (docs/bending.md) the right symmetry ranks first by 10% (face bent
+        72 degrees) to 30 times (remeshed sheet).
     """
 
     dp_rounds: int = 10
@@ -121,6 +127,7 @@ class Advanced:
     refine_iterations: int = 10
     fine_iterations: int = 5
     refine_rel_tol: float = 1e-2
+    choice_window: float = 0.2
 
     def __post_init__(self):
         for name in (
@@ -145,6 +152,7 @@ class Advanced:
         ):
             _number(name, getattr(self, name), 0.0, math.inf)
         _number("step_fraction", self.step_fraction, 0.0, 1.0, low_open=True)
+        _number("choice_window", self.choice_window, 0.0, 1.0, low_open=True)
 
     def steps(self, basis: int, **changes) -> StepParams:
         """The :class:`StepParams` of a descent round in the basis KL = ``basis`` (``changes`` override fields)."""
@@ -198,6 +206,14 @@ class Options:
     corner_search : int
         Trial corner placements of the second mesh when the boundaries have no four clear corners; 0 turns
         the search off. Default 8.
+    bend_window : float
+        Meshes in mode "auto": the correspondence starts from the two maps to the square (which bending does not
+        change) and descends E_w, E with a rotation of its own for every window of this width (side lengths of
+        the square): bending over longer lengths is not charged, so the descent does not slide a bent surface's
+        correspondence (:mod:`meshreg.bending`, docs/bending.md). Smaller: sharper creases kept (a fold), less
+        of the relief's long-range shape used (a stretch). 0 minimizes E itself, as for grids (the paper's
+        method; the registration then also runs the DP stage and the refinement levels). Default 0.05. The
+        reported E is E itself either way.
     advanced : Advanced
         The rare numerics.
     """
@@ -219,6 +235,7 @@ class Options:
     corners1: tuple[int, int, int, int] | None = None
     corners2: tuple[int, int, int, int] | None = None
     corner_search: int = 8
+    bend_window: float = 0.05
     advanced: Advanced = field(default_factory=Advanced)
 
     def __post_init__(self):
@@ -231,6 +248,7 @@ class Options:
         _integer("max_starts", self.max_starts, 1, 8)
         _integer("resolution", self.resolution, 3, 100_000)
         _integer("corner_search", self.corner_search, 0, 1000)
+        _number("bend_window", self.bend_window, 0.0, 1.0)
         smoothing = tuple(self.smoothing)
         if not all(isinstance(s, (int, float)) and math.isfinite(s) and 0 < s <= 1 for s in smoothing):
             raise InputError(f"smoothing must be standard deviations in (0, 1] (side lengths), got {smoothing}")
@@ -371,6 +389,15 @@ FLAGS: tuple[Flag, ...] = (
         nargs=4,
         metavar="ID",
         group="corners",
+    ),
+    Flag(
+        "--bend-window",
+        "bend_window",
+        "mode auto: width (side lengths) of the windows whose own rotations let a mesh bend without cost; "
+        "0 = minimize E itself (default 0.05)",
+        float,
+        metavar="W",
+        group="meshes",
     ),
     Flag(
         "--corner-search",

@@ -73,6 +73,7 @@ def register(
     corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
     corner_search: int = DEFAULTS.corner_search,
+    bend_window: float = DEFAULTS.bend_window,
     advanced: Advanced | None = None,
     callback: Progress | None = None,
 ) -> Registration:
@@ -88,6 +89,9 @@ def register(
         How to register: see :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
     resolution, weights, cleanup, corners1, corners2, corner_search
         How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
+    bend_window
+        Meshes in mode "auto": windows within which E_w lets the surface bend (default 0.05; 0: minimize E
+        itself); see :mod:`meshreg.bending`.
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
@@ -126,6 +130,7 @@ def register(
         corners1=corners1,
         corners2=corners2,
         corner_search=corner_search,
+        bend_window=bend_window,
         advanced=advanced or Advanced(),
     )
     return register_with(first, second, options, callback)

@@ -307,11 +307,12 @@ def gd_paths(options: Options) -> list[dict]:
     return paths
 
 
-def work_objective(objective: Objective, first: GridSurface, second: GridSurface, second_area: float):
+def work_objective(objective: Objective, first: GridSurface, second: GridSurface, second_area: float, make=Objective):
     """E on every f-th node of the first grid (at most COARSE_NODES per axis), and the nodes' indices.
 
     ``objective`` is E on the full grid of ``first`` and ``second``; it is returned itself when the full grid
-    is small enough.
+    is small enough. ``make(first, second, second_area)`` builds the work grid's objective (default
+    :class:`~meshreg.objective.Objective`).
     """
     m, n = objective.first.shape
     ir = np.unique(np.r_[np.arange(0, m, -(-(m - 1) // (COARSE_NODES - 1))), m - 1])
@@ -319,4 +320,4 @@ def work_objective(objective: Objective, first: GridSurface, second: GridSurface
     if len(ir) == m and len(it) == n:
         return objective, (ir, it)
     coarse = GridSurface(first.points[np.ix_(ir, it)], first.r[ir], first.t[it])
-    return Objective(coarse, second, second_area), (ir, it)
+    return make(coarse, second, second_area), (ir, it)

@@ -1,0 +1,137 @@
+"""Registration that keeps a bent surface's correspondence: the parametrizations' own match, improved by E_w.
+
+Two meshes of one material surface, one of them bent, get (nearly) the same harmonic map to the square when their
+corners are the same material points: the map is built from lengths and angles within the surface, which bending
+keeps. E, which compares normals after one rotation of the whole surface, charges the bending, and minimizing it
+slides the correspondence away from the right one (on a sheet rolled by 180 degrees, E of the true map is 0.69 and
+the minimum found 0.53). So for meshes (``Options.bend_window`` > 0, mode "auto"):
+
+1. the symmetry of the square (which corner of the second's square is (0, 0), and whether r and t swap) is chosen
+   by E_w (:mod:`meshreg.local_rotation`) at h = that symmetry, in windows of ``advanced.choice_window``, on
+   coarse grids: local rotations absorb the bending, the relief within a window decides;
+2. from h = the symmetry (the parametrizations' own correspondence), h descends on E_w with windows of
+   ``bend_window``, in the smooth basis of the descent (KL = ``basis``; the finer refinement levels fit the
+   resampling's noise there and are not run); several symmetries that rank within CHOICE_MARGIN of the best
+   (at most ``max_starts``) are each descended and the lowest E_w wins;
+3. E itself is reported at the answer (at its best rotation), so that energies stay comparable with every other
+   registration; ``params["bend_energy"]`` holds E_w.
+
+No DP stage: the DP minimizes E and walks away from the parametrization on bends.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+
+import numpy as np
+
+from .grid import GridSurface
+from .local_rotation import LocalObjective, local_energy
+from .objective import Objective
+from .options import Options
+from .result import Registration
+from .rotation import kabsch, similarity
+from .schedule import Descent, Log, Progress, work_objective
+from .search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry, symmetry_map
+
+CHOICE_GRID = 41  # nodes per axis of the coarse grids on which symmetries and corner placements are ranked
+CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction of the best are descended too
+
+
+def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
+    """The surface at area 1 on an n x n uniform grid (for ranking)."""
+    return surface.scaled().resampled(n, n)
+
+
+def symmetry_energies(first: GridSurface, second: GridSurface, window: float, tried) -> list[tuple[int, float]]:
+    """(symmetry, E_w at h = that symmetry) for each symmetry of the square in ``tried``, lowest first; both
+    surfaces are ranked on :func:`coarse` grids with windows of ``window`` (side lengths)."""
+    a, b = coarse(first), coarse(second)
+    energies = [(k, local_energy(a.points, apply_symmetry(b, k).points, a.r, a.t, window)) for k in tried]
+    return sorted(energies, key=lambda x: x[1])
+
+
+def tried_symmetries(options: Options) -> tuple[int, ...]:
+    """The symmetries of the square that mode "auto" tries: all 8, the 4 that keep orientation
+    (``keep_orientation``), or the identity alone (without ``search`` or ``symmetries``)."""
+    if not (options.search and options.symmetries):
+        return (0,)
+    return ORIENTATION_PRESERVING if options.keep_orientation else tuple(range(len(SQUARE_SYMMETRIES)))
+
+
+def register_bending(
+    first: GridSurface,
+    second: GridSurface,
+    options: Options,
+    callback: Progress | None = None,
+    symmetry: int | None = None,
+) -> Registration:
+    """Register two grid surfaces (two meshes on their squares) from their parametrizations' own correspondence,
+    descending E_w (see the module's docstring).
+
+    Parameters
+    ----------
+    first, second : GridSurface
+    options : Options
+        ``bend_window`` (> 0), ``advanced.choice_window``, ``basis``, ``solver``, ``max_starts``, ``search``,
+        ``symmetries``, ``keep_orientation`` and the descent's numerics.
+    callback : callable, optional
+        ``callback(stage, iteration, E_w)`` after every accepted step (stage "gd").
+    symmetry : int, optional
+        The symmetry of the square to use (corners given on both meshes fix it); default: chosen.
+
+    Returns
+    -------
+    Registration
+        ``energy`` is E at the answer (at its best rotation); ``energy_history`` holds E_w along the descent.
+    """
+    start = time.perf_counter()
+    timings: dict = {}
+    tic = time.perf_counter()
+    tried = (symmetry,) if symmetry is not None else tried_symmetries(options)
+    ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
+    best = ranked[0][1]
+    starts = [k for k, e in ranked if e <= (1.0 + CHOICE_MARGIN) * best][: options.max_starts]
+    timings["search"] = time.perf_counter() - tic
+    area = second.area()
+    runs = []
+    for k in starts:
+        copy = apply_symmetry(second, k)
+        make = partial(LocalObjective, window=options.bend_window)
+        objective = make(first, copy, area)
+        work, nodes = work_objective(objective, first, copy, area, make=make)
+        drive = Descent(objective, options.replace(refine="none"), work, nodes)
+        log = Log(callback, timings)
+        rotation, h = drive.descend(np.eye(3), drive.restrict(objective.identity), [options.basis], log)
+        rotation, h = drive.polish(rotation, h, log)
+        runs.append((objective.energy(rotation, h), k, h, log))
+    bend_energy, k, h_copy, log = min(runs, key=lambda run: run[0])
+    plain = Objective(first, apply_symmetry(second, k), area)
+    rotation = kabsch(plain.best_rotation_covariance(h_copy))
+    h = symmetry_map(k, h_copy)
+    timings["total"] = time.perf_counter() - start
+    params = {
+        **options.as_dict(),
+        "bend_energy": float(bend_energy),
+        "starts": [
+            {"symmetry": s, "choice_energy": float(e), "refined": s == k, "descended": s in starts} for s, e in ranked
+        ],
+        "grid_first": list(first.shape),
+        "grid_second": list(second.shape),
+    }
+    return Registration(
+        rotation=rotation,
+        h=h,
+        energy=plain.energy(rotation, h_copy),
+        energy_dp=float("nan"),
+        energy_history=np.array(log.energies),
+        r=plain.r,
+        t=plain.t,
+        mode=options.mode,
+        params=params,
+        timings=timings,
+        symmetry=k,
+        energy_stages=tuple(log.stages),
+        transform=similarity(rotation, first.points, second.at(h)),
+    )
