@@ -10,9 +10,11 @@ the minimum found 0.53). So for meshes (``Options.bend_window`` > 0, mode "auto"
    by E_w (:mod:`meshreg.local_rotation`) at h = that symmetry, in windows of ``advanced.choice_window``, on
    coarse grids: local rotations absorb the bending, the relief within a window decides;
 2. from h = the symmetry (the parametrizations' own correspondence), h descends on E_w with windows of
-   ``bend_window``, in the smooth basis of the descent (KL = ``basis``; the finer refinement levels fit the
-   resampling's noise there and are not run); several symmetries that rank within CHOICE_MARGIN of the best
-   (at most ``max_starts``) are each descended and the lowest E_w wins;
+   ``bend_window``, in the basis of the descent (KL = ``basis``), then in the refinement levels that are not
+   finer than ``finest``: for meshes, ``advanced.refine_triangles`` triangles, since below a few triangles two
+   meshes of one surface are different piecewise-linear surfaces and a finer h fits their difference, not the
+   correspondence; several symmetries that rank within CHOICE_MARGIN of the best (at most ``max_starts``) are
+   each descended and the lowest E_w wins;
 3. E itself is reported at the answer (at its best rotation), so that energies stay comparable with every other
    registration; ``params["bend_energy"]`` holds E_w.
 
@@ -37,6 +39,7 @@ from .search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry, s
 
 CHOICE_GRID = 41  # nodes per axis of the coarse grids on which symmetries and corner placements are ranked
 CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction of the best are descended too
+WINDOW_CELLS = 4.0  # the descent's windows are at least this many grid cells wide (a rotation is fitted in each)
 
 
 def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
@@ -50,6 +53,13 @@ def symmetry_energies(first: GridSurface, second: GridSurface, window: float, tr
     a, b = coarse(first), coarse(second)
     energies = [(k, local_energy(a.points, apply_symmetry(b, k).points, a.r, a.t, window)) for k in tried]
     return sorted(energies, key=lambda x: x[1])
+
+
+def descent_window(first: GridSurface, bend_window: float) -> float:
+    """The descent's window: ``bend_window``, widened to WINDOW_CELLS cells of the first's grid (on a 41 x 41
+    grid a window of 2 cells absorbs the relief it should compare and the descent stalls)."""
+    cell = max(np.diff(first.r).max(), np.diff(first.t).max())
+    return float(max(bend_window, WINDOW_CELLS * cell))
 
 
 def tried_symmetries(options: Options) -> tuple[int, ...]:
@@ -66,6 +76,7 @@ def register_bending(
     options: Options,
     callback: Progress | None = None,
     symmetry: int | None = None,
+    finest: float = 0.0,
 ) -> Registration:
     """Register two grid surfaces (two meshes on their squares) from their parametrizations' own correspondence,
     descending E_w (see the module's docstring).
@@ -80,6 +91,10 @@ def register_bending(
         ``callback(stage, iteration, E_w)`` after every accepted step (stage "gd").
     symmetry : int, optional
         The symmetry of the square to use (corners given on both meshes fix it); default: chosen.
+    finest : float
+        Refinement levels finer than this (side lengths of the square) are not run (see
+        :class:`~meshreg.schedule.Descent`): for meshes, ``advanced.refine_triangles`` times their typical edge
+        length on the square (:func:`meshreg.mesh.harmonic.edge_length`). Default 0: every level.
 
     Returns
     -------
@@ -95,17 +110,8 @@ def register_bending(
     starts = [k for k, e in ranked if e <= (1.0 + CHOICE_MARGIN) * best][: options.max_starts]
     timings["search"] = time.perf_counter() - tic
     area = second.area()
-    runs = []
-    for k in starts:
-        copy = apply_symmetry(second, k)
-        make = partial(LocalObjective, window=options.bend_window)
-        objective = make(first, copy, area)
-        work, nodes = work_objective(objective, first, copy, area, make=make)
-        drive = Descent(objective, options.replace(refine="none"), work, nodes)
-        log = Log(callback, timings)
-        rotation, h = drive.descend(np.eye(3), drive.restrict(objective.identity), [options.basis], log)
-        rotation, h = drive.polish(rotation, h, log)
-        runs.append((objective.energy(rotation, h), k, h, log))
+    window = descent_window(first, options.bend_window)
+    runs = [_descend(first, second, area, k, window, options, finest, Log(callback, timings)) for k in starts]
     bend_energy, k, h_copy, log = min(runs, key=lambda run: run[0])
     plain = Objective(first, apply_symmetry(second, k), area)
     rotation = kabsch(plain.best_rotation_covariance(h_copy))
@@ -114,8 +120,9 @@ def register_bending(
     params = {
         **options.as_dict(),
         "bend_energy": float(bend_energy),
+        "bend_window_used": window,
         "starts": [
-            {"symmetry": s, "choice_energy": float(e), "refined": s == k, "descended": s in starts} for s, e in ranked
+            {"symmetry": s, "choice_energy": float(e), "descended": s in starts, "chosen": s == k} for s, e in ranked
         ],
         "grid_first": list(first.shape),
         "grid_second": list(second.shape),
@@ -135,3 +142,15 @@ def register_bending(
         energy_stages=tuple(log.stages),
         transform=similarity(rotation, first.points, second.at(h)),
     )
+
+
+def _descend(first, second, area, k, window, options, finest, log):
+    """E_w descended from h = the k-th symmetry of the square: (E_w, k, h on the symmetric copy's square, log)."""
+    copy = apply_symmetry(second, k)
+    make = partial(LocalObjective, window=window)
+    objective = make(first, copy, area)
+    work, nodes = work_objective(objective, first, copy, area, make=make)
+    drive = Descent(objective, options, work, nodes, finest)
+    rotation, h = drive.descend(np.eye(3), drive.restrict(objective.identity), [options.basis], log)
+    rotation, h = drive.polish(rotation, h, log)
+    return objective.energy(rotation, h), k, h, log

@@ -209,10 +209,13 @@ class Descent:
     options : Options
     work, nodes : Objective, (ndarray, ndarray)
         E on the work grid and its nodes' indices in the full grid (:func:`work_objective`).
+    finest : float
+        The refinement levels whose spacing (of the B-spline knots; of the full grid's nodes) is below this
+        (side lengths of the square) are not run. Default 0: all of them.
     """
 
-    def __init__(self, objective: Objective, options: Options, work: Objective, nodes: tuple):
-        self.objective, self.options = objective, options
+    def __init__(self, objective: Objective, options: Options, work: Objective, nodes: tuple, finest: float = 0.0):
+        self.objective, self.options, self.finest = objective, options, finest
         self.work, self.nodes = work, nodes
         self.solver = descend if options.solver == "gradient" else gauss_newton
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
@@ -247,9 +250,12 @@ class Descent:
         levels = []
         if refine:
             levels = [
-                (work, bspline_basis(k, work.r, work.t), False) for k in REFINE_KNOTS if k < min(work.first.shape) // 2
+                (work, bspline_basis(k, work.r, work.t), False)
+                for k in REFINE_KNOTS
+                if k < min(work.first.shape) // 2 and 1.0 / (k - 3) >= self.finest
             ]
-            levels.append((objective, None, True))
+            if min(np.diff(objective.r).max(), np.diff(objective.t).max()) >= self.finest:
+                levels.append((objective, None, True))
         source = work
         for target, fields, additive in levels:
             if target is not source:

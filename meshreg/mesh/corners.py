@@ -107,8 +107,8 @@ def search_corners(
     coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n)
 
     def rank(start):
-        uv = second(quarter_corners(disk2, start % 1.0))[0]
-        return symmetry_energies(coarse1, resample_grid(disk2.vertices, disk2.faces, uv, n, n), window, symmetries)[0][1]
+        grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n)
+        return symmetry_energies(coarse1, grid, window, symmetries)[0][1]
 
     tried = [(float(start), rank(start)) for start in placement_starts(disk2, trials)]
     step = 0.25 / trials

@@ -14,7 +14,7 @@ from ..pipeline import register_grids
 from ..result import Registration
 from ..schedule import Progress
 from .corners import corner_positions
-from .harmonic import HarmonicMap
+from .harmonic import HarmonicMap, edge_length
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
 
@@ -96,7 +96,9 @@ def register_meshes(
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
     if options.mode == "auto" and options.bend_window > 0:
-        result = register_bending(grids[0], grids[1], options, callback, symmetry)
+        edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])
+        finest = options.advanced.refine_triangles * edges
+        result = register_bending(grids[0], grids[1], options, callback, symmetry, finest)
     else:
         result = register_grids(grids[0], grids[1], options, callback)
     sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]

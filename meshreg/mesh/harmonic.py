@@ -14,6 +14,7 @@ from ..errors import InputError
 from .boundary import sharp_corners
 from .topology import DiskMesh, loop_segments, triangle_areas
 
+
 def _principal_extremes(disk: DiskMesh) -> np.ndarray:
     """Loop positions of the boundary vertices reaching furthest along +-e1 and +-e2, the surface's two
     main principal directions (area-weighted): the same surface points whatever the pose, scale,
@@ -145,6 +146,12 @@ def arc_fraction(disk: DiskMesh, position: int) -> float:
     """Arc-length fraction in [0, 1) of the boundary loop at loop position ``position``."""
     seg = loop_segments(disk.vertices, disk.boundary)
     return float(seg[:position].sum() / seg.sum())
+
+
+def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
+    """Median length of a mesh's edges on the square (its resolution there), for faces (m, 3) and uv (n, 2)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return float(np.median(np.linalg.norm(uv[e[:, 0]] - uv[e[:, 1]], axis=1)))
 
 
 def _factorize(a: sp.csc_matrix):
