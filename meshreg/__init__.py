@@ -11,7 +11,7 @@
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
 
-from .errors import InputError
+from .errors import InputError, RunError
 from .options import MODES, Advanced, Options
 
 # the heavy parts (numba kernels, scipy) load on first use, so that `meshreg --help` and `import meshreg` are quick
@@ -39,7 +39,7 @@ __all__ = [
     "InputError",
     "Options",
     "Registration",
-    "atlas",
+    "RunError",
     "distance_matrix",
     "read_grid",
     "register",

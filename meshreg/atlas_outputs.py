@@ -107,7 +107,7 @@ def atlas_files(
     """``meshreg atlas``: the atlas of grid files and/or meshes, checkpointed in ``out/.checkpoint`` (resumed from
     there; removed when done) and written to ``out`` (see the module). ``scheduler`` is the address of a
     dask.distributed scheduler (default: a local process pool of ``jobs`` processes)."""
-    from .batch import _client
+    from .matrix_run import _client
 
     files, out = [Path(f) for f in files], Path(out)
     missing = [str(f) for f in files if not f.is_file()]

@@ -7,8 +7,11 @@ index is always the first surface, so reruns and clusters give the same numbers)
 
 Every finished pair is appended to a checkpoint file (JSON lines, flushed and fsynced) as it completes;
 a rerun with the same inputs and parameters skips the pairs already there, so an interrupted run (Ctrl-C,
-a lost worker, a killed machine) loses at most the pairs in flight. The final ``.npz`` is written to a
-temporary file and renamed (atomic). A pair that fails (a bad mesh) is recorded with its reason.
+SIGTERM, a killed machine) loses at most the pairs in flight. A pair that fails (a bad mesh, a lost worker
+process) is recorded with its reason and, by default, tried again by the next run (``retry_failed``); a surface
+that cannot be read or prepared is reported and skipped, the rest goes on. The local pool
+(:mod:`meshreg.workers`) replaces a lost worker, so that only the pair it held fails. The final ``.npz`` is written
+to a temporary file and renamed (atomic); the checkpoint is removed only once every pair has a value.
 """
 
 from __future__ import annotations
@@ -17,20 +20,23 @@ import hashlib
 import json
 import os
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+import zipfile
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .checkpoint import CHECKPOINT_SUFFIX, Checkpoint, _digest
+from .errors import InputError, RunError
+from .files import surface_kind, write_atomic
 from .grid import GridSurface, read_grid
+from .limits import check_jobs
 from .options import Options
 from .pipeline import register_with
 from .result import Registration
+from .workers import run_tasks
 
-CHECKPOINT_SUFFIX = ".checkpoint.jsonl"
+__all__ = ["CHECKPOINT_SUFFIX", "DistanceMatrix", "Prepared", "distance_matrix", "prepare_surface", "run_checkpointed"]
 
 
 @dataclass
@@ -46,30 +52,38 @@ class Prepared:
 def prepare_surface(item, name: str | None = None, options: Options | None = None) -> Prepared:
     """Read and prepare one surface: a GridSurface, an (M, N, 3) array, a (vertices, faces) pair, or a path to a
     grid file or a mesh (see :func:`meshreg.mesh.corners.mesh_grids`: a mesh without four clear corners
-    keeps its grids for ``options.corner_search`` corner placements); a Prepared is returned as it is. Errors
-    (unreadable file, not a disk, ...) are returned in ``error``, not raised."""
-    from .mesh.topology import MESH_SUFFIXES
-
+    keeps its grids for ``options.corner_search`` corner placements). Errors (unreadable file, not a disk, out of
+    memory, ...) are returned in ``error``, not raised: the item is skipped and the rest goes on."""
     if isinstance(item, Prepared):
         return item
     name = name or (str(item) if isinstance(item, (str, Path)) else "surface")
+    options = options or Options()
     try:
-        if isinstance(item, GridSurface):
-            return Prepared(name, item)
         if isinstance(item, (str, Path)):
-            if Path(item).suffix.lower() not in MESH_SUFFIXES:
-                return Prepared(name, read_grid(item))
-            from .mesh.topology import load_mesh
+            if surface_kind(item) == "grid":
+                item = read_grid(item)
+            else:
+                from .mesh.topology import load_mesh
 
-            item = load_mesh(item)
+                item = load_mesh(item)
         if isinstance(item, tuple):
             from .mesh.corners import mesh_grids
 
-            grids, _ = mesh_grids(*item, options or Options())
+            options.check_grids((options.resolution, options.resolution))
+            grids, _ = mesh_grids(*item, options)
             return Prepared(name, grids[0], placements=grids[1:])
-        return Prepared(name, GridSurface.from_array(item))
+        grid = item if isinstance(item, GridSurface) else GridSurface.from_array(item)
+        options.check_grids(grid.shape)
+        return Prepared(name, grid)
     except InputError as err:
-        return Prepared(name, None, str(err))
+        text = str(err)
+        for prefix in (f"{name}: ", f"{Path(name)}: "):  # the name is said once, by whoever reports the item
+            text = text.removeprefix(prefix)
+        return Prepared(name, None, text)
+    except MemoryError:
+        return Prepared(name, None, "out of memory while preparing it")
+    except Exception as err:  # noqa: BLE001 - one bad item is reported and skipped, whatever failed
+        return Prepared(name, None, f"{type(err).__name__}: {err}")
 
 
 def register_pair(first: GridSurface, second: GridSurface | list, options: Options) -> dict:
@@ -97,6 +111,8 @@ def registered_pair(first: GridSurface, second: GridSurface | list, options: Opt
             record["placement"] = best_placement(first, second, options.keep_orientation)
             second = second[record["placement"]]
         result = register_with(first, second, options)
+    if not np.isfinite(result.energy):
+        raise RunError(f"the registration gave E = {result.energy}")
     record["seconds"] = time.perf_counter() - tic
     return result, record
 
@@ -117,9 +133,11 @@ class DistanceMatrix:
     seconds : ndarray (N, N)
         Registration time of each pair (wall clock in its worker), symmetric.
     failures : dict
-        ``(i, j) -> reason`` for pairs that failed.
+        ``(i, j) -> reason`` for pairs without a value (failed, or involving a skipped surface).
     params : dict
         The registration and preparation parameters used.
+    skipped : dict
+        ``k -> reason`` for surfaces that could not be read or prepared (every pair with them has no value).
     """
 
     names: list
@@ -129,86 +147,69 @@ class DistanceMatrix:
     seconds: np.ndarray
     failures: dict = field(default_factory=dict)
     params: dict = field(default_factory=dict)
+    skipped: dict = field(default_factory=dict)
 
     def save(self, path) -> None:
-        """Write ``.npz`` atomically (temporary file in the same directory, then rename)."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
+        """Write ``.npz`` atomically (temporary file in the same directory, then rename; RunError on OSError)."""
         failures = [f"{i} {j} {reason}" for (i, j), reason in sorted(self.failures.items())]
-        np.savez(
-            tmp,
-            distance=self.distance,
-            energy=self.energy,
-            files=np.array(self.names),
-            rotations=self.rotations,
-            seconds=self.seconds,
-            failures=np.array(failures, dtype=str),
-            params=json.dumps(self.params),
+        skipped = [f"{k} {reason}" for k, reason in sorted(self.skipped.items())]
+        write_atomic(
+            path,
+            lambda tmp: np.savez(
+                tmp,
+                distance=self.distance,
+                energy=self.energy,
+                files=np.array(self.names),
+                rotations=self.rotations,
+                seconds=self.seconds,
+                failures=np.array(failures, dtype=str),
+                skipped=np.array(skipped, dtype=str),
+                params=json.dumps(self.params),
+            ),
         )
-        os.replace(tmp, path)
 
     @classmethod
     def load(cls, path) -> DistanceMatrix:
-        with np.load(path) as data:
-            failures = {}
-            for line in data["failures"].tolist():
-                i, j, reason = line.split(" ", 2)
-                failures[int(i), int(j)] = reason
-            return cls(
-                data["files"].tolist(),
-                data["distance"],
-                data["energy"],
-                data["rotations"],
-                data["seconds"],
-                failures,
-                json.loads(str(data["params"])),
-            )
-
-
-class Checkpoint:
-    """Append-only JSON-lines record of finished pairs, tied to the inputs and parameters by a key."""
-
-    def __init__(self, path, key: str):
-        self.path = Path(path)
-        self.key = key
-        self.done: dict = {}
-        if self.path.exists():
-            lines = self.path.read_text().splitlines()
-            header = _json_or_none(lines[0]) if lines else None
-            if header is None or header.get("key") != key:
-                raise InputError(
-                    f"{self.path} is a checkpoint of another run (other inputs or parameters): "
-                    "delete it or write the matrix elsewhere"
+        """Read a matrix written by :meth:`save` (InputError when the file is not one)."""
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                failures = {}
+                for line in data["failures"].tolist():
+                    i, j, reason = line.split(" ", 2)
+                    failures[int(i), int(j)] = reason
+                skipped = {}
+                for line in data["skipped"].tolist() if "skipped" in data else []:
+                    k, reason = line.split(" ", 1)
+                    skipped[int(k)] = reason
+                return cls(
+                    data["files"].tolist(),
+                    data["distance"],
+                    data["energy"],
+                    data["rotations"],
+                    data["seconds"],
+                    failures,
+                    json.loads(str(data["params"])),
+                    skipped,
                 )
-            for line in lines[1:]:
-                record = _json_or_none(line)  # a line cut by a kill is skipped: that pair is redone
-                if record is not None:
-                    self.done[record["i"], record["j"]] = record
-        self._file = open(self.path, "a")
-        if not self.path.stat().st_size:
-            self._write({"key": key})
-
-    def add(self, record: dict) -> None:
-        self.done[record["i"], record["j"]] = record
-        self._write(record)
-
-    def _write(self, record: dict) -> None:
-        self._file.write(json.dumps(record) + "\n")
-        self._file.flush()
-        os.fsync(self._file.fileno())
-
-    def close(self) -> None:
-        self._file.close()
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as err:
+            raise InputError(f"{path}: not a meshreg distance matrix file ({type(err).__name__}: {err})") from None
 
 
-def _json_or_none(line: str):
-    try:
-        return json.loads(line)
-    except json.JSONDecodeError:
+def _params_key(params: dict) -> str:
+    """The checkpoint key of a run: its parameters (``force`` left out: it changes no result)."""
+    kept = {k: v for k, v in params.items() if k != "force"}
+    return _digest(json.dumps(kept, sort_keys=True, default=str).encode())
+
+
+def _surface_key(p: Prepared) -> str | None:
+    """A digest of a prepared surface: its grid and partitions, and its other corner placements."""
+    if p.grid is None:
         return None
+    return _digest(*(a for g in [p.grid, *p.placements] for a in (g.points, g.r, g.t)))
 
 
 def _run_key(names, grids, params) -> str:
+    """A digest of a run: names, parameters and grids (the atlas ties its stages' checkpoints to it)."""
     digest = hashlib.sha256(json.dumps({"names": names, "params": params}, sort_keys=True, default=str).encode())
     for g in grids:
         digest.update(b"-" if g is None else np.ascontiguousarray(g.points).tobytes())
@@ -224,13 +225,16 @@ def distance_matrix(
     jobs: int | None = None,
     checkpoint=None,
     progress=None,
+    retry_failed: bool = True,
+    preparing=None,
 ) -> DistanceMatrix:
     """All pairwise elastic distances of a collection.
 
     Parameters
     ----------
     surfaces : sequence
-        GridSurfaces, (M, N, 3) arrays, (vertices, faces) pairs, or paths of grid files or meshes.
+        GridSurfaces, (M, N, 3) arrays, (vertices, faces) pairs, or paths of grid files or meshes. An item that
+        cannot be read or prepared is skipped (``skipped`` of the result); the rest goes on.
     options : Options, optional
         How meshes become grids (``resolution``, ``weights``, ``cleanup``, ``corner_search``) and how every pair
         is registered (default mode "auto").
@@ -239,11 +243,17 @@ def distance_matrix(
     client : dask.distributed.Client, optional
         Run the pairs on this Dask cluster. Default: a local process pool.
     jobs : int, optional
-        Processes of the local pool (default: the machine's cores; 1 runs in this process).
+        Processes of the local pool (default: the machine's cores; 1 runs in this process). A lost process costs
+        only the pair it held (that pair fails; a new process takes its place).
     checkpoint : path, optional
-        JSON-lines file recording each finished pair; an existing one for the same run is resumed.
+        JSON-lines file recording each finished pair (:class:`Checkpoint`); an existing one for the same
+        parameters is resumed.
     progress : callable, optional
         ``progress(done, total)`` after every finished pair (and once at the start).
+    retry_failed : bool
+        When resuming, run again the pairs the checkpoint records as failed (default); False keeps them failed.
+    preparing : callable, optional
+        ``preparing(done, total)`` after each surface is prepared (read; meshes cleaned, mapped, resampled).
 
     Returns
     -------
@@ -261,49 +271,74 @@ def distance_matrix(
     n = len(items)
     if n < 2:
         raise InputError("a distance matrix needs at least 2 surfaces")
+    options = options or Options()
+    jobs = check_jobs(jobs, options.force) if client is None else None
     if names is None:
         names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
-    options = options or Options()
-    prepared = [prepare_surface(x, nm, options) for x, nm in zip(items, names, strict=True)]
+    if len(names) != n:
+        raise InputError(f"{len(names)} names for {n} surfaces")
+    prepared = []
+    for item, name in zip(items, names, strict=True):
+        prepared.append(prepare_surface(item, name, options))
+        if preparing is not None:
+            preparing(len(prepared), n)
     run_params = options.as_dict()
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
-    key = _run_key(names, [p.grid for p in prepared], run_params)
     done = run_checkpointed(
-        prepared, pairs, options, key=key, checkpoint=checkpoint, client=client, jobs=jobs, progress=progress
+        prepared,
+        pairs,
+        options,
+        key=_params_key(run_params),
+        checkpoint=checkpoint,
+        client=client,
+        jobs=jobs,
+        progress=progress,
+        retry_failed=retry_failed,
     )
-    return _assemble(names, done, run_params)
+    skipped = {k: p.error for k, p in enumerate(prepared) if p.error}
+    return _assemble(names, done, run_params, skipped)
 
 
 def run_checkpointed(
-    prepared, pairs, options: Options, *, key: str, checkpoint=None, client=None, jobs=None, progress=None, task=None
+    prepared,
+    pairs,
+    options: Options,
+    *,
+    key: str,
+    checkpoint=None,
+    client=None,
+    jobs: int | None = None,
+    progress=None,
+    task=None,
+    retry_failed: bool = True,
 ) -> dict:
-    """Run every pair (i, j) of ``pairs`` once (see :func:`run_pairs`) and return ``{(i, j): record}``.
+    """Run every pair (i, j) of ``pairs`` once (:func:`run_pairs`) and return ``{(i, j): record}``.
 
-    With ``checkpoint`` (a path), each finished pair is appended to that JSON-lines file, tied to the run by
-    ``key``; pairs already there are not run again. A pair with a surface that could not be prepared gets an
-    error record. ``progress(done, total)`` is called at the start and after every pair.
+    With ``checkpoint`` (a path), each finished pair is appended to that :class:`~meshreg.checkpoint.Checkpoint`,
+    tied to the run by ``key`` and to its two surfaces by their digests; pairs already there are not run again
+    (failed ones are, with ``retry_failed``). A pair with a surface that could not be prepared is not run.
+    ``progress(done, total)`` is called at the start and after every pair.
     """
+    keys = [_surface_key(p) for p in prepared]
     store = Checkpoint(checkpoint, key) if checkpoint else None
-    done = dict(store.done) if store else {}
+    done = {}
+    for record in store.records if store else []:
+        i, j = record["i"], record["j"]
+        if j < len(prepared) and keys[i] is not None and (record["first"], record["second"]) == (keys[i], keys[j]):
+            done[i, j] = record  # a later record of a pair (a retry) replaces an earlier one
+    if retry_failed:
+        done = {pair: record for pair, record in done.items() if "error" not in record}
     notify = progress or (lambda finished, total: None)
     notify(len(done), len(pairs))
 
     def finish(i, j, record):
-        record = {"i": i, "j": j, **record}
+        record = {"i": i, "j": j, "first": keys[i], "second": keys[j], **record}
         done[i, j] = record
         if store:
             store.add(record)
         notify(len(done), len(pairs))
 
-    todo = []
-    for i, j in pairs:
-        if (i, j) in done:
-            continue
-        bad = [p for p in (prepared[i], prepared[j]) if p.error]
-        if bad:
-            finish(i, j, {"error": "; ".join(f"{p.name}: {p.error}" for p in bad)})
-        else:
-            todo.append((i, j))
+    todo = [(i, j) for i, j in pairs if (i, j) not in done and keys[i] is not None and keys[j] is not None]
     try:
         run_pairs(prepared, todo, options, finish, client=client, jobs=jobs, task=task)
     finally:
@@ -312,12 +347,14 @@ def run_checkpointed(
     return done
 
 
-def _outcome(call) -> dict:
+def _outcome(function, args) -> dict:
     """The pair's record, or its error: one failing pair must not stop the run (KeyboardInterrupt does)."""
     try:
-        return call()
+        return function(*args)
     except InputError as err:
         return {"error": str(err)}
+    except MemoryError:
+        return {"error": "out of memory"}
     except Exception as err:  # noqa: BLE001 - any failure of one pair is reported, with its type
         return {"error": f"{type(err).__name__}: {err}"}
 
@@ -330,8 +367,9 @@ def _seconds(p: Prepared):
 def run_pairs(prepared, todo, options: Options, finish, *, client=None, jobs: int | None = None, task=None) -> None:
     """Run ``task(prepared[i].grid, second, options)`` for each pair (i, j) of ``todo``, ``second`` being surface
     j's grid or its corner placements, on the Dask ``client`` or a local pool of ``jobs`` processes (default: the
-    machine's cores; 1 runs in this process), and call ``finish(i, j, record)`` as each ends (a failed pair's
-    record is ``{"error": reason}``). ``task`` defaults to :func:`register_pair`; it must be picklable."""
+    machine's cores; 1 runs in this process; a lost process costs only its pair), and call ``finish(i, j,
+    record)`` as each ends (a failed pair's record is ``{"error": reason}``). ``task`` defaults to
+    :func:`register_pair`; it must be picklable."""
     task = task or register_pair
     if client is not None:
         _run_dask(client, prepared, todo, options, finish, task)
@@ -339,25 +377,16 @@ def run_pairs(prepared, todo, options: Options, finish, *, client=None, jobs: in
         _run_local(prepared, todo, options, finish, jobs or os.cpu_count() or 1, task)
 
 
-def _run_local(prepared, todo, options: Options, finish, jobs: int, task=register_pair) -> None:
-    if jobs <= 1:
-        for i, j in todo:
-            finish(i, j, _outcome(partial(task, prepared[i].grid, _seconds(prepared[j]), options)))
+def _run_local(prepared, todo, options: Options, finish, jobs: int, task) -> None:
+    tasks = [((i, j), (prepared[i].grid, _seconds(prepared[j]), options)) for i, j in todo]
+    if jobs <= 1 or len(tasks) <= 1:
+        for (i, j), args in tasks:
+            finish(i, j, _outcome(task, args))
         return
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        running = {pool.submit(task, prepared[i].grid, _seconds(prepared[j]), options): (i, j) for i, j in todo}
-        try:
-            while running:
-                finished, _ = wait(running, return_when=FIRST_COMPLETED)
-                for future in finished:
-                    i, j = running.pop(future)
-                    finish(i, j, _outcome(future.result))
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+    run_tasks(task, tasks, jobs, lambda pair, record: finish(*pair, record), _outcome)
 
 
-def _run_dask(client, prepared, todo, options, finish, task=register_pair) -> None:
+def _run_dask(client, prepared, todo, options, finish, task) -> None:
     from distributed import as_completed
 
     used = {k for pair in todo for k in pair}
@@ -367,86 +396,33 @@ def _run_dask(client, prepared, todo, options, finish, task=register_pair) -> No
     try:
         for future in as_completed(futures):
             i, j = futures[future]
-            finish(i, j, _outcome(future.result))
+            finish(i, j, _outcome(future.result, ()))
     except BaseException:
         client.cancel(list(futures))
         raise
 
 
-def _assemble(names, done: dict, params: dict) -> DistanceMatrix:
+def _assemble(names, done: dict, params: dict, skipped: dict) -> DistanceMatrix:
     n = len(names)
     energy = np.full((n, n), np.nan)
     np.fill_diagonal(energy, 0.0)
     rotations = np.tile(np.eye(3), (n, n, 1, 1))
     seconds = np.zeros((n, n))
     failures = {}
-    for (i, j), record in done.items():
-        if "error" in record:
-            failures[i, j] = record["error"]
-            continue
-        energy[i, j] = energy[j, i] = record["energy"]
-        rotations[i, j] = record["rotation"]
-        rotations[j, i] = np.transpose(record["rotation"])
-        seconds[i, j] = seconds[j, i] = record["seconds"]
-    missing = [(i, j) for i in range(n) for j in range(i + 1, n) if (i, j) not in done]
-    for pair in missing:
-        failures[pair] = "not run"
-    return DistanceMatrix(list(names), np.sqrt(np.maximum(energy, 0.0)), energy, rotations, seconds, failures, params)
-
-
-def matrix_files(
-    files,
-    out,
-    options: Options | None = None,
-    *,
-    jobs: int | None = None,
-    scheduler: str | None = None,
-    plot: bool = False,
-    progress=None,
-):
-    """``meshreg matrix``: the distance matrix of files, checkpointed beside ``out`` (``.npz``) and resumed from
-    there, written atomically; with ``plot`` also ``out`` with suffix ``.png``. ``scheduler`` is the address of
-    a dask.distributed scheduler (default: the local process pool of ``jobs`` processes).
-
-    Returns the DistanceMatrix and the figure's path (None without ``plot``).
-    """
-    files, out = [Path(f) for f in files], Path(out)
-    if out.suffix != ".npz":
-        raise InputError(f"{out}: the matrix file must end in .npz")
-    if any(out.resolve() == f.resolve() for f in files):
-        raise InputError(f"{out} is one of the inputs: choose another output file")
-    missing = [str(f) for f in files if not f.is_file()]
-    if missing:
-        raise InputError(f"no such file: {', '.join(missing)}")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    client = _client(scheduler) if scheduler else None
-    checkpoint = out.with_name(out.name + CHECKPOINT_SUFFIX)
-    try:
-        result = distance_matrix(files, options, client=client, jobs=jobs, checkpoint=checkpoint, progress=progress)
-    except KeyboardInterrupt:
-        raise InputError(
-            f"interrupted: finished pairs are kept in {checkpoint}; rerun the same command to resume"
-        ) from None
-    finally:
-        if client is not None:
-            client.close()
-    result.save(out)
-    checkpoint.unlink(missing_ok=True)
-    figure = None
-    if plot:
-        from .viz import classical_mds, plot_matrix
-
-        figure = plot_matrix(result.names, result.distance, classical_mds(result.distance), out.with_suffix(".png"))
-    return result, figure
-
-
-def _client(scheduler: str):
-    """A dask.distributed Client of the scheduler at ``scheduler``."""
-    try:
-        from distributed import Client
-    except ImportError:
-        raise InputError("--scheduler needs dask.distributed: pip install 'meshreg[dask]'") from None
-    try:
-        return Client(scheduler, timeout="20s")
-    except (OSError, TimeoutError) as err:
-        raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from None
+    for i in range(n):
+        for j in range(i + 1, n):
+            record = done.get((i, j))
+            bad = [k for k in (i, j) if k in skipped]
+            if bad:
+                failures[i, j] = "; ".join(f"{names[k]} skipped: {skipped[k]}" for k in bad)
+            elif record is None:
+                failures[i, j] = "not run"
+            elif "error" in record:
+                failures[i, j] = record["error"]
+            else:
+                energy[i, j] = energy[j, i] = record["energy"]
+                rotations[i, j] = record["rotation"]
+                rotations[j, i] = np.transpose(record["rotation"])
+                seconds[i, j] = seconds[j, i] = record["seconds"]
+    distance = np.sqrt(np.maximum(energy, 0.0))
+    return DistanceMatrix(list(names), distance, energy, rotations, seconds, failures, params, dict(skipped))

@@ -1,25 +1,45 @@
 """The ``meshreg`` command line: it parses arguments, calls the library and prints; nothing else.
 
-meshreg register FIRST SECOND -o OUT [--mode auto|dp|gd|dp+gd] [--window W] [--basis KL] ...
-meshreg matrix FILES... -o D.npz [--jobs N] [--scheduler URL] [--plot]
+meshreg register FIRST SECOND -o OUT [--mode auto|dp|gd|dp+gd] [--window W] [--basis KL] ... [--force]
+meshreg matrix FILES... -o D.npz [--jobs N] [--scheduler URL] [--plot] [--no-retry-failed] [--force]
 meshreg atlas FILES... -o OUT [--jobs N] [--scheduler URL] [--modes K] ...   template, one connectivity, modes
 meshreg atlas --demo -o OUT                    the atlas of a family of deformed terrain patches
 meshreg morph A B -o morph.gif | meshreg morph OUT/atlas.npz --mode 1 -o mode1.gif
 meshreg paper [--grid M] [--modes ...]        rerun the paper's ten pairs beside its numbers
 meshreg demo [-o OUT]                          register a sample pair and write result + figures
 
-The registration flags are generated from :data:`meshreg.options.FLAGS`.
+The registration flags are generated from :data:`meshreg.options.FLAGS`. Exit status: 0 done, 1 a run that did
+not finish its work, 2 bad input or usage, 130 Ctrl-C, 143 SIGTERM (see :func:`main`).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from . import __version__
-from .errors import InputError
+from .errors import InputError, RunError
+
+EXIT_RUN, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 2, 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the run stops its workers and says where its finished work is."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line (with where to find the usage), exit status 2."""
+
+    def error(self, message):
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _progress_callback(bar):
@@ -107,28 +127,29 @@ def cmd_demo(args) -> int:
 def cmd_matrix(args) -> int:
     from tqdm import tqdm
 
-    from .batch import matrix_files
+    from .matrix_run import check_matrix, matrix_files
     from .options import options_from_args
 
     options = options_from_args(args)
+    check_matrix(args.files, args.output, options, jobs=args.jobs, scheduler=args.scheduler)
     n = len(args.files)
-    if not args.quiet:
-        print(
-            f"preparing {n} surfaces (read; meshes cleaned, mapped to the square, resampled), then "
-            f"{n * (n - 1) // 2} pairs",
-            file=sys.stderr,
-        )
-    with tqdm(desc="pairs", unit=" pair", disable=args.quiet) as bar:
+    pairs = _count(n * (n - 1) // 2, "pair")
+    bars = {}
 
-        def progress(done, total):
-            bar.total = total
-            if bar.n == 0 and done:
-                bar.reset(total)  # resuming: count the checkpointed pairs, time only the new ones
-                bar.initial = done
-            bar.n = done
-            bar.refresh()
+    def preparing(done, total):
+        if "prepare" not in bars:
+            bars["prepare"] = tqdm(desc="preparing surfaces", total=total, unit=" surface", disable=args.quiet)
+        bars["prepare"].update(done - bars["prepare"].n)
+        if done == total:
+            bars["prepare"].close()
 
-        result, figure = matrix_files(
+    def progress(done, total):
+        if "pairs" not in bars:  # resuming: the checkpointed pairs are counted, only the new ones timed
+            bars["pairs"] = tqdm(desc="pairs", total=total, initial=done, unit=" pair", disable=args.quiet)
+        bars["pairs"].update(done - bars["pairs"].n)
+
+    try:
+        run = matrix_files(
             args.files,
             args.output,
             options,
@@ -136,13 +157,35 @@ def cmd_matrix(args) -> int:
             scheduler=args.scheduler,
             plot=args.plot,
             progress=progress,
+            retry_failed=args.retry_failed,
+            preparing=preparing,
         )
-    print(f"{n} surfaces, {n * (n - 1) // 2} pairs -> {args.output} (distance = sqrt(E), energy, rotations, seconds)")
+    finally:
+        for bar in bars.values():
+            bar.close()
+    result = run.result
+    for k, reason in sorted(result.skipped.items()):
+        print(f"skipped {args.files[k]}: {reason}")
     for (i, j), reason in sorted(result.failures.items()):
-        print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
-    if figure is not None:
-        print(f"figure         {figure}")
+        if i not in result.skipped and j not in result.skipped:
+            print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
+    if run.reused:
+        print(
+            f"{run.written} already holds the finished matrix of these {_count(n, 'surface')} and parameters "
+            "(newer than every input): nothing recomputed (--force recomputes)"
+        )
+    elif run.written is not None:
+        print(f"{_count(n, 'surface')}, {pairs} -> {run.written} (distance = sqrt(E), energy, rotations, seconds)")
+    if run.figure is not None:
+        print(f"figure         {run.figure}")
+    if run.error:
+        print(f"meshreg: error: {run.error}", file=sys.stderr)
+        return EXIT_RUN
     return 0
+
+
+def _count(k: int, noun: str) -> str:
+    return f"{k} {noun}{'' if k == 1 else 's'}"
 
 
 def cmd_view(args) -> int:
@@ -256,7 +299,7 @@ def cmd_paper(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="meshreg", description="Elastic shape registration of surfaces.")
+    parser = _Parser(prog="meshreg", description="Elastic shape registration of surfaces.")
     parser.add_argument("--version", action="version", version=f"meshreg {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (_add_register, _add_view, _add_demo, _add_matrix, _add_atlas, _add_morph, _add_paper):
@@ -315,6 +358,12 @@ def _add_matrix(sub) -> None:
     matrix.add_argument("--jobs", type=int, default=None, help="local worker processes (default: all cores)")
     matrix.add_argument("--scheduler", help="a dask.distributed scheduler address, e.g. tcp://host:8786")
     matrix.add_argument("--plot", action="store_true", help="also write OUTPUT.png: heat map, dendrogram, MDS")
+    matrix.add_argument(
+        "--retry-failed",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="when resuming, run again the pairs that failed before (default; --no-retry-failed keeps them failed)",
+    )
     add_flags(matrix, groups=("registration", "meshes"))
     matrix.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     matrix.set_defaults(func=cmd_matrix)
@@ -385,19 +434,43 @@ def _add_paper(sub) -> None:
     paper.set_defaults(func=cmd_paper)
 
 
+def _line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run a command; returns the exit status: 0 done, 1 a run that did not finish its work (RunError, pairs
+    without a value, out of memory), 2 bad input (InputError, usage), 130 Ctrl-C, 143 SIGTERM. Each error is one
+    line on stderr; only an unexpected exception (a bug) shows a traceback."""
     args = build_parser().parse_args(argv)
+    previous = signal.getsignal(signal.SIGTERM)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.func(args)
     except InputError as err:
-        print(f"meshreg: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("meshreg: interrupted", file=sys.stderr)
-        return 130
+        print(f"meshreg: error: {_line(err)}", file=sys.stderr)
+        return EXIT_INPUT
+    except RunError as err:
+        print(f"meshreg: error: {_line(err)}", file=sys.stderr)
+        return EXIT_RUN
+    except MemoryError:
+        print(
+            "meshreg: error: out of memory: lower --resolution, the grid size or --jobs, or free memory "
+            "(no output written)",
+            file=sys.stderr,
+        )
+        return EXIT_RUN
+    except KeyboardInterrupt as err:
+        notes = "; ".join(getattr(err, "__notes__", []))
+        print(f"meshreg: interrupted{': ' + notes if notes else ''}", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(err, Terminated) else EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader of our output went away (`meshreg ... | head`): nothing left to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -248,9 +248,9 @@ def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, se
 def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:
     """Solve (normal + diag(shift)) x = rhs (symmetric positive definite).
 
-    Up to ``DENSE_LIMIT`` unknowns by Cholesky; beyond (the node basis), by Jacobi-preconditioned
-    CG stopped after ``cg_iterations``: the result is only a Gauss-Newton step, which the energy
-    test accepts or rejects, so an inexact solve is enough.
+    Up to ``DENSE_LIMIT`` unknowns by Cholesky; beyond (the node basis, sparse; a global basis of KL >= 23,
+    dense), by Jacobi-preconditioned CG stopped after ``cg_iterations``: the result is only a Gauss-Newton
+    step, which the energy test accepts or rejects, so an inexact solve is enough.
     """
     if normal.shape[0] <= DENSE_LIMIT:
         dense = normal.toarray() if sp.issparse(normal) else normal
@@ -258,6 +258,10 @@ def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np
             return scipy.linalg.cho_solve(scipy.linalg.cho_factor(dense + np.diag(shift)), rhs)
         except np.linalg.LinAlgError:
             return np.linalg.lstsq(dense + np.diag(shift), rhs, rcond=None)[0]
-    matrix = (normal + sp.diags(shift)).tocsr()
+    if sp.issparse(normal):
+        matrix = (normal + sp.diags(shift)).tocsr()
+    else:
+        matrix = np.array(normal)
+        matrix[np.diag_indices_from(matrix)] += shift
     x, _ = sp.linalg.cg(matrix, rhs, M=sp.diags(1.0 / matrix.diagonal()), maxiter=cg_iterations, rtol=1e-10)
     return x

@@ -230,7 +230,8 @@ def dp_surface_min(
     t : ndarray, shape (N,)
         Common t partition.
     window : int
-        W, the largest step (dk, dl) component. Default 10 (63 steps).
+        W, the largest step (dk, dl) component. Default 10 (63 steps). Steps longer than the grid are never
+        used: W is capped at the nodes per axis minus 1 (same result; :mod:`meshreg.limits` checks the time).
     rotation : ndarray, shape (3, 3), optional
         Starting R. Default: Kabsch at the identity gamma (needs A == B); R = I if A != B.
     max_rounds : int
@@ -259,7 +260,7 @@ def dp_surface_min(
     c = column_covariances(q1, q2, dt)
     norms = float(np.sum(np.diff(r1)[:, None] * dt * np.sum(q1**2, -1)))
     norms += float(np.sum(np.diff(r2)[:, None] * dt * np.sum(q2**2, -1)))
-    step = steps(window)
+    step = steps(min(window, max(len(r1), len(r2)) - 1))  # wider steps leave the table: the same DP, bounded cost
     lo, hi = strip if strip is not None else strip_bounds(len(r1), len(r2), None, 0)
     if rotation is None:
         if q1.shape[0] == q2.shape[0]:

@@ -7,7 +7,7 @@ File formats read by :func:`read_grid`:
 
 * ``.npy``: an array of shape (M, N, 3), uniform partitions.
 * ``.npz``: key ``points`` of shape (M, N, 3), optional keys ``r`` (M,) and ``t`` (N,).
-* text (any other suffix): the paper's format, one point ``x y z`` per line with r running fastest,
+* text (``.txt``, ``.dat``): the paper's format, one point ``x y z`` per line with r running fastest,
   i.e. the lines are c(r_1,t_1), c(r_2,t_1), ..., c(r_M,t_1), c(r_1,t_2), ...  The grid size comes
   from ``shape=(M, N)`` (the command line's ``--grid M N``) or from a first line holding the two
   integers ``M N``. Lines starting with ``#`` are ignored.
@@ -15,6 +15,7 @@ File formats read by :func:`read_grid`:
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -22,23 +23,85 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .files import GRID_SUFFIXES, existing_file
 from .spline import GridInterpolator
 
 MIN_NODES = 3
+# Coordinates are refused beyond these magnitudes: areas come from products of four lengths (|a x b|), which
+# overflow float64 beyond about 1e77 and underflow below 1e-77; E, R and h do not depend on the scale, so a
+# surface outside the range only needs rescaling.
+MAX_COORDINATE = 1e50
+MIN_EXTENT = 1e-50
+# A surface whose area is below this fraction of its bounding box's squared diameter is a degenerate sliver:
+# its cell normals are differences of nearly equal products and carry fewer than 6 significant digits.
+MIN_AREA_RATIO = 1e-10
+# Grid files with more nodes than this are refused before they are read (5000 x 5000 nodes, 600 MB of points).
+MAX_FILE_NODES = 25_000_000
+
+
+def coordinates(values, what: str) -> np.ndarray:
+    """Real float64 coordinates of an array-like: InputError when they are complex, booleans, text, ragged or
+    not finite (the message names ``what``)."""
+    try:
+        array = np.asarray(values)
+    except ValueError as err:  # ragged nested lists
+        raise InputError(f"{what} are not an array of numbers ({err})") from None
+    kind = array.dtype.kind
+    if kind == "c":
+        raise InputError(f"{what} are complex numbers: give real coordinates (the imaginary parts would be lost)")
+    if kind == "b":
+        raise InputError(f"{what} are booleans (True/False), not coordinates")
+    if kind not in "fiuO":
+        raise InputError(f"{what} are not numbers (dtype {array.dtype})")
+    try:
+        array = array.astype(float)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"{what} are not numbers ({err})") from None
+    bad = int(np.sum(~np.isfinite(array)))
+    if bad:
+        raise InputError(f"{what} contain {bad} NaN or infinite values")
+    return array
+
+
+def check_scale(points: np.ndarray, what: str) -> float:
+    """The diameter of the bounding box of ``points`` (..., 3); InputError when the coordinates are too large or
+    the extent too small for float64 areas (see MAX_COORDINATE, MIN_EXTENT)."""
+    flat = points.reshape(-1, 3)
+    largest = float(np.abs(flat).max()) if flat.size else 0.0
+    if largest > MAX_COORDINATE:
+        raise InputError(
+            f"{what} reach {largest:.1e}: areas overflow beyond {MAX_COORDINATE:.0e}; rescale the surface "
+            "(E, R and h do not depend on its scale)"
+        )
+    diameter = float(np.linalg.norm(np.ptp(flat, axis=0))) if flat.size else 0.0
+    if 0 < diameter < MIN_EXTENT:
+        raise InputError(
+            f"{what} span only {diameter:.1e}: areas underflow below {MIN_EXTENT:.0e}; rescale the surface "
+            "(E, R and h do not depend on its scale)"
+        )
+    return diameter
 
 
 def _partition(values, n: int, name: str) -> np.ndarray:
     """Validate a partition of length ``n`` and rescale it to [0, 1]."""
     if values is None:
         return np.linspace(0.0, 1.0, n)
-    p = np.asarray(values, dtype=float).ravel()
+    p = coordinates(values, f"partition {name} values").ravel()
     if p.shape != (n,):
         raise InputError(f"partition {name} has {p.size} values but the grid has {n} nodes along {name}")
-    if not np.all(np.isfinite(p)):
-        raise InputError(f"partition {name} contains NaN or infinite values")
     if np.any(np.diff(p) <= 0):
         raise InputError(f"partition {name} must be strictly increasing")
     return (p - p[0]) / (p[-1] - p[0])
+
+
+def _check_unit_partition(p, n: int, name: str) -> None:
+    """A partition as GridSurface holds it: n values increasing strictly from 0 to 1."""
+    ok = isinstance(p, np.ndarray) and p.shape == (n,) and p.dtype.kind == "f" and bool(np.all(np.isfinite(p)))
+    if not ok or np.any(np.diff(p) <= 0) or abs(p[0]) > 1e-9 or abs(p[-1] - 1) > 1e-9:
+        raise InputError(
+            f"partition {name} must be {n} finite values increasing strictly from 0 to 1 "
+            "(GridSurface.from_array checks and rescales any partition)"
+        )
 
 
 @dataclass(frozen=True)
@@ -70,6 +133,20 @@ class GridSurface:
     r: np.ndarray
     t: np.ndarray
 
+    def __post_init__(self):
+        p = self.points
+        if not (isinstance(p, np.ndarray) and p.ndim == 3 and p.shape[2] == 3 and p.dtype.kind == "f"):
+            raise InputError(
+                "GridSurface points must be a float array of shape (M, N, 3) (GridSurface.from_array converts "
+                f"and checks any array), got {getattr(p, 'dtype', type(p).__name__)} {np.shape(p)}"
+            )
+        if p.shape[0] < MIN_NODES or p.shape[1] < MIN_NODES:
+            raise InputError(f"grid is {p.shape[0]}x{p.shape[1]}; at least {MIN_NODES}x{MIN_NODES} nodes are needed")
+        _check_unit_partition(self.r, p.shape[0], "r")
+        _check_unit_partition(self.t, p.shape[1], "t")
+        if not np.all(np.isfinite(p)):
+            raise InputError(f"grid points contain {int(np.sum(~np.isfinite(p)))} NaN or infinite values")
+
     @classmethod
     def from_array(cls, points, r=None, t=None) -> GridSurface:
         """Validate ``points`` (M, N, 3) and optional partitions; rescale partitions to [0, 1].
@@ -77,19 +154,26 @@ class GridSurface:
         Raises
         ------
         InputError
-            On a wrong shape, a grid smaller than 3x3, NaN/inf values, bad partitions or zero area.
+            On a wrong shape, a grid smaller than 3x3, values that are not finite real numbers, coordinates
+            beyond MAX_COORDINATE or spanning less than MIN_EXTENT, bad partitions, zero area or a degenerate
+            sliver (area below MIN_AREA_RATIO of the bounding box's squared diameter).
         """
-        p = np.asarray(points, dtype=float)
+        p = coordinates(points, "grid points")
         if p.ndim != 3 or p.shape[2] != 3:
             raise InputError(f"grid points must have shape (M, N, 3), got {p.shape}")
         m, n = p.shape[:2]
         if m < MIN_NODES or n < MIN_NODES:
             raise InputError(f"grid is {m}x{n}; at least {MIN_NODES}x{MIN_NODES} nodes are needed")
-        if not np.all(np.isfinite(p)):
-            raise InputError(f"grid points contain {int(np.sum(~np.isfinite(p)))} NaN or infinite values")
+        diameter = check_scale(p, "grid points")
         surface = cls(p, _partition(r, m, "r"), _partition(t, n, "t"))
-        if not surface.area() > 0:
+        area = surface.area()
+        if not area > 0:
             raise InputError("surface has zero area (all points collinear or equal)")
+        if area < MIN_AREA_RATIO * diameter**2:
+            raise InputError(
+                f"surface is a degenerate sliver: its area is {area / diameter**2:.1e} of its bounding box's squared "
+                f"diameter (below {MIN_AREA_RATIO:.0e}), too thin for its normals, hence E, to mean anything"
+            )
         return surface
 
     @property
@@ -141,6 +225,15 @@ def as_surface(surface) -> GridSurface:
         return surface
     if isinstance(surface, (str, Path)):
         return read_grid(surface)
+    if isinstance(surface, tuple) and len(surface) == 2:
+        raise InputError(
+            "got a pair (vertices, faces)? register takes grid surfaces: register meshes with "
+            "meshreg.mesh.correspond.register_meshes or `meshreg register a.ply b.ply`"
+        )
+    if not isinstance(surface, (np.ndarray, list, tuple)):
+        raise InputError(
+            f"a surface must be a GridSurface, an (M, N, 3) array or a grid file path, got {surface!r:.60}"
+        )
     return GridSurface.from_array(surface)
 
 
@@ -163,32 +256,77 @@ def read_grid(path, shape: tuple[int, int] | None = None) -> GridSurface:
     InputError
         When the file is missing or unreadable, or its contents are not a valid grid.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(path)
     suffix = path.suffix.lower()
+    if suffix not in GRID_SUFFIXES:
+        raise InputError(
+            f"{path}: unknown grid file type {suffix or '(no suffix)'!r}: grids are {' '.join(GRID_SUFFIXES)} "
+            "(.txt/.dat: the text format 'x y z' per line)"
+        )
+    if shape is not None:
+        shape = _grid_size(shape, "--grid")
     try:
         if suffix == ".npy":
+            with open(path, "rb") as stream:
+                _check_file_size(_npy_shape(stream))  # the header's shape, before any data is read
             return GridSurface.from_array(np.load(path, allow_pickle=False))
         if suffix == ".npz":
             with np.load(path, allow_pickle=False) as data:
                 if "points" not in data:
-                    raise InputError(f"{path}: .npz grid files need a 'points' array of shape (M, N, 3)")
+                    raise InputError(".npz grid files need a 'points' array of shape (M, N, 3)")
+                if "points.npy" in data.zip.namelist():
+                    with data.zip.open("points.npy") as member:
+                        _check_file_size(_npy_shape(member))
                 r = data["r"] if "r" in data else None
                 t = data["t"] if "t" in data else None
                 return GridSurface.from_array(data["points"], r, t)
         return _read_text(path, shape)
     except InputError as err:
         raise InputError(f"{path}: {err}") from None
-    except (OSError, ValueError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: cannot read grid file ({err})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text grid (not UTF-8 text): give .npy, .npz or 'x y z' lines") from None
+    except MemoryError:
+        raise InputError(f"{path}: too large to read into memory") from None
+    except OSError as err:
+        raise InputError(f"{path}: cannot read grid file ({err.strerror or err})") from None
+    except (ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
+        raise InputError(f"{path}: cannot read grid file ({type(err).__name__}: {err})") from None
+
+
+def _npy_shape(member) -> tuple:
+    """The shape in the header of an .npy stream (an .npz member), read without its data."""
+    version = np.lib.format.read_magic(member)
+    header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    return header(member)[0]
+
+
+def _check_file_size(shape: tuple) -> None:
+    nodes = int(np.prod(shape[:2], dtype=np.float64)) if len(shape) >= 2 else 0
+    if nodes > MAX_FILE_NODES:
+        raise InputError(
+            f"the file holds a {' x '.join(map(str, shape))} array ({nodes:.1e} nodes), above the {MAX_FILE_NODES:.1e} "
+            "nodes meshreg reads: resample it"
+        )
+
+
+def _grid_size(shape, what: str) -> tuple[int, int]:
+    """(M, N) of a grid size given by the user: two integers of at least MIN_NODES, at most MAX_FILE_NODES nodes."""
+    try:
+        m, n = (int(v) for v in shape)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be two integers M N, got {shape!r}") from None
+    if m < MIN_NODES or n < MIN_NODES or m * n > MAX_FILE_NODES:
+        raise InputError(
+            f"{what} must be two integers >= {MIN_NODES} (at most {MAX_FILE_NODES:.1e} nodes), got {m} {n}"
+        )
+    return m, n
 
 
 def _read_text(path: Path, shape: tuple[int, int] | None) -> GridSurface:
-    lines = [ln.split() for ln in path.read_text().splitlines()]
+    lines = [ln.split() for ln in path.read_text(encoding="utf-8").splitlines()]
     lines = [ln for ln in lines if ln and not ln[0].startswith("#")]
     if lines and len(lines[0]) == 2:
-        header = tuple(int(v) for v in lines[0])
+        header = _grid_size(lines[0], "the first line 'M N'")
         lines = lines[1:]
         shape = shape or header
     if shape is None:

@@ -23,9 +23,11 @@ meshreg.errors.InputError: window must be an integer from 1 to ..., got 0
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from .errors import InputError
+from .limits import check_grids, check_static
 
 MODES = ("auto", "dp", "gd", "dp+gd")
 SOLVERS = ("gauss-newton", "gradient")
@@ -223,6 +225,9 @@ class Options:
         of the relief's long-range shape used (a stretch). 0 minimizes E itself, as for grids (the paper's
         method; the registration then also runs the DP stage and the refinement levels). Default 0.05. The
         reported E is E itself either way.
+    force : bool
+        Lift the limits of :mod:`meshreg.limits` on what a run may cost (grid nodes, the DP window's time, the
+        corner search, worker processes) knowingly. Default False.
     advanced : Advanced
         The rare numerics.
     """
@@ -245,12 +250,16 @@ class Options:
     corners2: tuple[int, int, int, int] | None = None
     corner_search: int = 8
     bend_window: float = 0.05
+    force: bool = False
     advanced: Advanced = field(default_factory=Advanced)
 
     def __post_init__(self):
         for name, allowed in (("mode", MODES), ("solver", SOLVERS), ("refine", REFINEMENTS), ("weights", WEIGHTS)):
             if getattr(self, name) not in allowed:
                 raise InputError(f"unknown {name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
+        for name in ("search", "symmetries", "cleanup", "force"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
         _integer("window", self.window, 1, MAX_WINDOW)
         _integer("basis", self.basis, 1, MAX_BASIS)
         _integer("start_basis", self.start_basis, 1, MAX_BASIS)
@@ -265,11 +274,14 @@ class Options:
         for name in ("corners1", "corners2"):
             value = getattr(self, name)
             if value is not None:
-                if len(value) != 4 or not all(_is_int(v) and v >= 0 for v in value):
-                    raise InputError(f"{name} must be four vertex ids, got {value}")
+                ok = hasattr(value, "__len__") and not isinstance(value, str) and len(value) == 4
+                ok = ok and len({int(v) for v in value if _is_int(v)}) == 4
+                if not ok or not all(_is_int(v) and v >= 0 for v in value):
+                    raise InputError(f"{name} must be four different vertex ids, got {value}")
                 object.__setattr__(self, name, tuple(int(v) for v in value))
         if not isinstance(self.advanced, Advanced):
             raise InputError(f"advanced must be a meshreg.Advanced, got {type(self.advanced).__name__}")
+        check_static(self)
 
     def replace(self, **changes) -> Options:
         """A copy with some fields changed (validated again)."""
@@ -279,6 +291,11 @@ class Options:
         """:class:`StepParams` of the descent rounds (basis KL = ``basis``, default ``self.basis``)."""
         return self.advanced.steps(self.basis if basis is None else basis, **changes)
 
+    def check_grids(self, *shapes: tuple[int, int]) -> None:
+        """Refuse grids (M, N) (the first grid first) too large for the limits of :mod:`meshreg.limits`, or for
+        the DP window on them, unless ``force`` (InputError with the estimate and the limit)."""
+        check_grids(self, *shapes)
+
     def as_dict(self) -> dict:
         """Every field, the advanced ones included, as one flat JSON-ready dict."""
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "advanced"}
@@ -286,6 +303,24 @@ class Options:
         for name in ("corners1", "corners2"):
             out[name] = None if out[name] is None else list(out[name])
         return {**out, **asdict(self.advanced)}
+
+
+SCHEDULER_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+_ADDRESS = re.compile(
+    r"^(?:(?P<scheme>[a-z]+)://)?(?P<host>\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(?P<port>[0-9]{1,5})/?$"
+)
+
+
+def check_scheduler(address: str) -> str:
+    """A dask.distributed scheduler address ``[scheme://]host:port`` (scheme one of SCHEDULER_SCHEMES), or
+    InputError before any connection is tried."""
+    match = _ADDRESS.match(address) if isinstance(address, str) else None
+    if not match or (match["scheme"] or "tcp") not in SCHEDULER_SCHEMES or not 0 < int(match["port"]) < 65536:
+        raise InputError(
+            "--scheduler must be a Dask scheduler address like tcp://host:8786 "
+            f"(schemes {', '.join(SCHEDULER_SCHEMES)}), got {address!r}"
+        )
+    return address
 
 
 def _is_int(value) -> bool:
@@ -380,6 +415,13 @@ FLAGS: tuple[Flag, ...] = (
         "refuse to repair meshes (holes, pieces, ears, pinched vertices)",
         group="meshes",
         const=False,
+    ),
+    Flag(
+        "--force",
+        "force",
+        "run even when the grid size, --window, --resolution, --corner-search or --jobs exceed the limits on "
+        "memory and time (the refusal states the estimate); matrix: recompute a finished matrix",
+        const=True,
     ),
     Flag(
         "--corners1",

@@ -7,9 +7,11 @@ Outputs in the directory ``out``:
   c2 o h, E per step), with ``symmetric`` also ``result_reverse.npz``;
 - meshes: the same, plus ``first.ply`` and ``second.ply`` (the input vertices and faces, coloured so that
   corresponding points share a colour), ``registered.ply`` (the second surface on the first's grid, in the
-  first's frame), ``meshes.png``, and each mesh's uv in ``result.npz`` (``uv_first``, ``uv_second``).
+  first's frame), ``meshes.png``, each mesh's uv and matched points in ``result.npz``, and with ``html`` the
+  interactive page ``view.html``.
 
-See docs/outputs.md.
+The output place is checked before any computation, the outputs of an earlier run there are removed, and the new
+ones are written all together or not at all (:func:`meshreg.files.staged`). See docs/outputs.md.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .files import output_dir, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
 from .result import Registration
 from .schedule import Progress
@@ -28,6 +31,11 @@ RESULT_FILE = "result.npz"
 REVERSE_FILE = "result_reverse.npz"
 FIGURE_FILE = "registration.png"
 MESH_FILES = ("first.ply", "second.ply", "registered.ply", "meshes.png")
+VIEW_FILE = "view.html"
+# every file a run may write: those of an earlier run are removed before this run computes, so that none of them
+# can pass for this run's
+OUTPUT_FILES = (RESULT_FILE, REVERSE_FILE, FIGURE_FILE, *MESH_FILES, VIEW_FILE)
+DEMO_INPUTS = ("inputs/terrain_a.ply", "inputs/terrain_b.ply")
 
 
 @dataclass
@@ -40,16 +48,12 @@ class Written:
     reverse: Registration | None = None
 
 
-def output_dir(path, inputs: list[Path]) -> Path:
-    """The output directory, made if missing; refused when it is a file or would overwrite an input."""
-    out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out} exists and is not a directory: give another -o")
-    resolved = {p.resolve() for p in inputs}
-    for name in (RESULT_FILE, REVERSE_FILE, FIGURE_FILE, *MESH_FILES):
-        if (out / name).resolve() in resolved:
-            raise InputError(f"{out / name} is an input file: choose another output directory")
-    out.mkdir(parents=True, exist_ok=True)
+def prepare_output(path, inputs: list[Path], names=OUTPUT_FILES) -> Path:
+    """The output directory, checked before any computation (:func:`meshreg.files.output_dir`: made if missing;
+    refused when it is a file, under a file, not writable, or an output would overwrite an input or a directory),
+    with the outputs of an earlier run removed."""
+    out = output_dir(path, names, inputs)
+    remove_outputs(out, names)
     return out
 
 
@@ -82,46 +86,52 @@ def register_files(
         Progress, as for :func:`meshreg.register`.
     """
     from .grid import read_grid
-    from .mesh.topology import MESH_SUFFIXES, load_mesh
+    from .mesh.topology import load_mesh
     from .surfaces import Mesh
 
     options = options or Options()
     paths = [Path(first), Path(second)]
-    is_mesh = [p.suffix.lower() in MESH_SUFFIXES for p in paths]
-    if any(is_mesh):
-        if not all(is_mesh):
-            raise InputError("give two meshes or two grid files, not one of each")
+    kinds = {surface_kind(p) for p in paths}
+    if len(kinds) > 1:
+        raise InputError("give two meshes or two grid files, not one of each")
+    if kinds == {"mesh"}:
         if symmetric:
             raise InputError("--symmetric registers grid files both ways; for meshes, run register twice")
         meshes = [Mesh(*load_mesh(p), name=str(p)) for p in paths]
-        return write_mesh_registration(meshes[0], meshes[1], output_dir(out, paths), options, callback, html)
+        side = (options.resolution, options.resolution)
+        options.check_grids(side, side)
+        return write_mesh_registration(*meshes, prepare_output(out, paths), options, callback, html)
     grids = [read_grid(p, grid_shape) for p in paths]
-    return write_grid_registration(grids[0], grids[1], output_dir(out, paths), options, symmetric, callback)
+    options.check_grids(grids[0].shape, grids[1].shape)
+    if symmetric:
+        options.check_grids(grids[1].shape, grids[0].shape)
+    return write_grid_registration(grids[0], grids[1], prepare_output(out, paths), options, symmetric, callback)
 
 
 def write_grid_registration(
     first, second, out: Path, options: Options, symmetric: bool = False, callback: Progress | None = None
 ) -> Written:
-    """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result)."""
+    """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result) into
+    the prepared directory ``out``, all together or not at all."""
     from .pipeline import register_with
     from .viz import plot_registration
 
     result = register_with(first, second, options, callback)
-    result.save(out / RESULT_FILE)
-    plot_registration(
-        result.apply(first.scaled().points),
-        second.scaled().at(result.h),
-        result.energy_history,
-        out / FIGURE_FILE,
-        title=f"{options.mode}: E = {result.energy:.3g}",
-        stages=result.energy_stages,
-    )
-    written = Written(result, [out / RESULT_FILE, out / FIGURE_FILE])
-    if symmetric:
-        written.reverse = register_with(second, first, options)
-        written.reverse.save(out / REVERSE_FILE)
-        written.files.append(out / REVERSE_FILE)
-    return written
+    reverse = register_with(second, first, options) if symmetric else None
+    names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
+    with staged(out, names) as stage:
+        result.save(stage / RESULT_FILE)
+        plot_registration(
+            result.apply(first.scaled().points),
+            second.scaled().at(result.h),
+            result.energy_history,
+            stage / FIGURE_FILE,
+            title=f"{options.mode}: E = {result.energy:.3g}",
+            stages=result.energy_stages,
+        )
+        if reverse is not None:
+            reverse.save(stage / REVERSE_FILE)
+    return Written(result, [out / name for name in names], reverse=reverse)
 
 
 def write_mesh_registration(
@@ -142,53 +152,53 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
     result = mr.result
     (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
     c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
-    write_ply(out / "first.ply", v1, f1, c1)
-    write_ply(out / "second.ply", v2, f2, c2)
-    write_ply(out / "registered.ply", *registered)
     on_second, on_first = result.correspondence(), result.correspondence_on_first()
     uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
-    result.save(out / RESULT_FILE, **uv, matched_first=on_second, matched_second=on_first)
     title = f"E = {result.energy:.3g}"
-    plot_meshes(
-        out / "meshes.png",
-        v1,
-        f1,
-        c1,
-        v2,
-        f2,
-        c2,
-        title=f"{title}: corresponding points share a colour and a checkerboard square",
-        second_to_first=np.linalg.inv(result.transform),
-        distance=result.distances() / np.sqrt(result.second.area()),
-    )
     g1, g2 = mr.grids
-    plot_registration(
-        result.apply(g1.scaled().points),
-        g2.scaled().at(result.h),
-        result.energy_history,
-        out / FIGURE_FILE,
-        title=title,
-        stages=result.energy_stages,
-    )
+    names = [RESULT_FILE, FIGURE_FILE, *MESH_FILES] + ([VIEW_FILE] if html else [])
+    with staged(out, names) as stage:
+        write_ply(stage / "first.ply", v1, f1, c1)
+        write_ply(stage / "second.ply", v2, f2, c2)
+        write_ply(stage / "registered.ply", *registered)
+        result.save(stage / RESULT_FILE, **uv, matched_first=on_second, matched_second=on_first)
+        plot_meshes(
+            stage / "meshes.png",
+            v1,
+            f1,
+            c1,
+            v2,
+            f2,
+            c2,
+            title=f"{title}: corresponding points share a colour and a checkerboard square",
+            second_to_first=np.linalg.inv(result.transform),
+            distance=result.distances() / np.sqrt(result.second.area()),
+        )
+        plot_registration(
+            result.apply(g1.scaled().points),
+            g2.scaled().at(result.h),
+            result.energy_history,
+            stage / FIGURE_FILE,
+            title=title,
+            stages=result.energy_stages,
+        )
+        if html:
+            from .view import write_view
+
+            write_view(
+                stage / VIEW_FILE,
+                (v1, f1, c1),
+                (v2, f2, c2),
+                (on_second, on_first),
+                np.linalg.inv(result.transform),
+                title=f"{title}: hover a point to see its match",
+            )
     notes = []
     for name, info in mr.info.items():
         notes += [f"{name} mesh cleanup: {line}" for line in info["cleanup"]]
         if info["flipped"]:
             notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
-    files = [out / RESULT_FILE, out / FIGURE_FILE, *(out / name for name in MESH_FILES)]
-    if html:
-        from .view import VIEW_FILE, write_view
-
-        view = write_view(
-            out / VIEW_FILE,
-            (v1, f1, c1),
-            (v2, f2, c2),
-            (on_second, on_first),
-            np.linalg.inv(result.transform),
-            title=f"{title}: hover a point to see its match",
-        )
-        files.append(view)
-    return Written(result, files, notes), mr
+    return Written(result, [out / name for name in names], notes), mr
 
 
 def run_demo(out, options: Options | None = None, callback: Progress | None = None, html: bool = True) -> Written:
@@ -201,7 +211,7 @@ def run_demo(out, options: Options | None = None, callback: Progress | None = No
     from .rotation import angle_between
     from .surfaces import Mesh
 
-    out = output_dir(out, [])
+    out = prepare_output(out, [], OUTPUT_FILES + DEMO_INPUTS)
     pair = (v1, f1, p1), (v2, f2, p2) = demo_pair()
     inputs = write_demo_meshes(out / "inputs", pair)[0].parent
     meshes = Mesh(v1, f1, "terrain_a"), Mesh(v2, f2, "terrain_b")
@@ -223,7 +233,7 @@ def view_outputs(out) -> Path:
     """``meshreg view OUT``: the interactive page ``OUT/view.html`` of a mesh registration written to ``OUT``."""
     import trimesh
 
-    from .view import VIEW_FILE, write_view
+    from .view import write_view
 
     out = Path(out)
     names = [out / "first.ply", out / "second.ply", out / RESULT_FILE]
@@ -237,11 +247,7 @@ def view_outputs(out) -> Path:
         matches = (data["matched_first"], data["matched_second"])
         transform, energy = data["transform"], float(data["energy"])
     first, second = ((m.vertices, m.faces, m.visual.vertex_colors[:, :3] / 255.0) for m in meshes)
-    return write_view(
-        out / VIEW_FILE,
-        first,
-        second,
-        matches,
-        np.linalg.inv(transform),
-        title=f"E = {energy:.3g}: hover a point to see its match",
+    title = f"E = {energy:.3g}: hover a point to see its match"
+    return write_atomic(
+        out / VIEW_FILE, lambda tmp: write_view(tmp, first, second, matches, np.linalg.inv(transform), title=title)
     )

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import InputError
+from .limits import MAX_NODES
 from .pipeline import register
 from .rotation import angle_between
 from .samples import paper_pairs
+
+PAPER_MAX_GRID = int(MAX_NODES**0.5)
 
 
 def run_paper(grid: int = 101, modes=("dp", "gd", "dp+gd", "auto"), progress: bool = False) -> list[dict]:
@@ -20,6 +24,8 @@ def run_paper(grid: int = 101, modes=("dp", "gd", "dp+gd", "auto"), progress: bo
     """
     from tqdm import tqdm
 
+    if not isinstance(grid, int) or not 3 <= grid <= PAPER_MAX_GRID:
+        raise InputError(f"grid must be an integer from 3 to {PAPER_MAX_GRID} (the paper uses 101), got {grid!r}")
     pairs = paper_pairs(grid, grid)
     rows = []
     with tqdm(total=len(pairs) * len(modes), disable=not progress, leave=False, desc="paper pairs") as bar:

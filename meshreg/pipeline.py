@@ -74,6 +74,7 @@ def register(
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
     corner_search: int = DEFAULTS.corner_search,
     bend_window: float = DEFAULTS.bend_window,
+    force: bool = DEFAULTS.force,
     advanced: Advanced | None = None,
     callback: Progress | None = None,
 ) -> Registration:
@@ -92,6 +93,8 @@ def register(
     bend_window
         Meshes in mode "auto": windows within which E_w lets the surface bend (default 0.05; 0: minimize E
         itself); see :mod:`meshreg.bending`.
+    force : bool
+        Lift the limits on grid size, DP window, basis and corner search of :mod:`meshreg.limits`.
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
@@ -103,6 +106,12 @@ def register(
     Registration
         R, h, E and the correspondence (``correspondence``, ``vertex_pairs``, ``transform``, ``distances``,
         ``fitness``, ``inlier_rmse``).
+
+    Raises
+    ------
+    InputError
+        Bad surfaces or parameters, or a grid or window beyond the limits (see :mod:`meshreg.limits`), before
+        any computation.
 
     Examples
     --------
@@ -131,7 +140,8 @@ def register(
         corners2=corners2,
         corner_search=corner_search,
         bend_window=bend_window,
-        advanced=advanced or Advanced(),
+        force=force,
+        advanced=Advanced() if advanced is None else advanced,
     )
     return register_with(first, second, options, callback)
 
@@ -140,6 +150,8 @@ def register_with(first, second, options: Options, callback: Progress | None = N
     """:func:`register` with every setting in one :class:`~meshreg.options.Options` (the command line, the adapters
     and the distance matrix call this). ``first`` and ``second`` are two grids or two meshes, in any form
     :func:`meshreg.surfaces.as_input` takes."""
+    if not isinstance(options, Options):
+        raise InputError(f"options must be a meshreg.Options, got {type(options).__name__}")
     a, b = as_input(first, "first"), as_input(second, "second")
     if isinstance(a, Mesh) != isinstance(b, Mesh):
         raise InputError("give two meshes or two grids, not one of each")
@@ -153,6 +165,7 @@ def register_with(first, second, options: Options, callback: Progress | None = N
 def register_grids(first: GridSurface, second: GridSurface, options: Options, callback: Progress | None = None):
     """The registration of two grid surfaces (the core of :func:`register_with`; no :class:`Side` attached)."""
     start = time.perf_counter()
+    options.check_grids(first.shape, second.shape)
     timings = {}
     starts = [Start(0, None, float("nan"))]
     if options.mode == "auto" and options.search:

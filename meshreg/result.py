@@ -4,13 +4,16 @@ format (``result.npz``)."""
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
 
 import numpy as np
 
 from .correspondence import Side, h_at, inverse_uv
 from .errors import InputError
+from .files import write_atomic
 
 INLIER_DISTANCE = 0.01  # default inlier threshold of fitness and inlier_rmse, as a fraction of sqrt(area of second)
 _SIDE_KEYS = ("vertices", "faces", "uv", "input_index", "source_ids")
@@ -190,7 +193,15 @@ class Registration:
         return self.second.at_uv(self._h(self.first.input_uv()))
 
     def save(self, path, **extra) -> None:
-        """Write the result to ``path`` (``.npz``; keys listed in docs/outputs.md), plus ``extra`` arrays."""
+        """Write the result to ``path`` (``.npz``; keys listed in docs/outputs.md), plus ``extra`` arrays, atomically
+        (a temporary name in the same directory, then a rename); like numpy, ``.npz`` is appended to a path
+        without it."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
+        write_atomic(path, lambda tmp: self._save(tmp, **extra))
+
+    def _save(self, path, **extra) -> None:
         np.savez(
             path,
             **extra,
@@ -242,8 +253,10 @@ class Registration:
                     second=_side(data, "second"),
                     info=json.loads(str(data["info"])) if "info" in data else {},
                 )
-        except (OSError, KeyError, ValueError) as err:
-            raise InputError(f"{path}: not a meshreg result file ({err})") from None
+        except OSError as err:
+            raise InputError(f"{path}: cannot read it ({err.strerror or err})") from None
+        except (KeyError, ValueError, EOFError, zipfile.BadZipFile) as err:
+            raise InputError(f"{path}: not a meshreg result file ({type(err).__name__}: {err})") from None
 
 
 def _side(data, name: str) -> Side | None:

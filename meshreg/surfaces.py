@@ -3,7 +3,7 @@ triangle mesh.
 
 Accepted: a :class:`~meshreg.grid.GridSurface`; an array of shape (M, N, 3) (a grid); a path (a grid file by its
 suffix ``.npy``, ``.npz`` or text, a mesh by ``.ply .obj .stl .off .glb .gltf``); a ``trimesh.Trimesh``; an
-Open3D ``TriangleMesh``; a pair ``(vertices (n, 3), faces (m, 3))``.
+Open3D ``TriangleMesh``; a tuple ``(vertices (n, 3), faces (m, 3))`` (a nested list is read as grid data).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def as_input(surface, name: str | None = None) -> GridSurface | Mesh:
     if hasattr(surface, "vertices") and (hasattr(surface, "faces") or hasattr(surface, "triangles")):
         faces = surface.faces if hasattr(surface, "faces") else surface.triangles  # trimesh / Open3D
         return _mesh(np.asarray(surface.vertices), np.asarray(faces), name or type(surface).__name__)
-    if isinstance(surface, (tuple, list)) and len(surface) == 2:
+    if isinstance(surface, tuple) and len(surface) == 2:  # a nested list is grid data, a pair of arrays a mesh
         return _mesh(np.asarray(surface[0]), np.asarray(surface[1]), name or "(vertices, faces)")
     if isinstance(surface, np.ndarray) or (isinstance(surface, (tuple, list)) and len(surface)):
         return GridSurface.from_array(surface)

@@ -15,8 +15,6 @@ import numpy as np
 
 from .errors import InputError
 
-VIEW_FILE = "view.html"
-
 _SCRIPT = """
 var gd = document.getElementById('{plot_id}');
 var matches = [__FIRST__, __SECOND__];  // matches[k][i]: the point matched with vertex i of mesh k, or null

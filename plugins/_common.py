@@ -20,9 +20,9 @@ def require(module: str, extra: str):
 
 
 def register_arrays(
-    first, second, options: Options | None = None
+    first, second, options: Options | None = None, names=("first mesh", "second mesh")
 ) -> tuple[MeshRegistration, np.ndarray, np.ndarray, tuple]:
     """Register (vertices, faces) pairs; returns the mesh registration, colours (n1, 3) and (n2, 3) in [0, 1] on
     the input vertices (grey where cleanup dropped a vertex) and the registered mesh (vertices, faces, colours)."""
-    mr = register_meshes(first, second, options)
+    mr = register_meshes(first, second, options, names=names)
     return mr, *colored_outputs(mr, len(first[0]), len(second[0]))

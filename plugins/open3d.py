@@ -64,7 +64,11 @@ class ElasticRegistrationResult:
     registration: Registration
 
 
-def _arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
+def _arrays(mesh, name: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (n, 3) and triangles (m, 3) of an ``open3d.geometry.TriangleMesh``; TypeError for anything else."""
+    if not isinstance(mesh, o3d.geometry.TriangleMesh):
+        hint = " (convert a tensor mesh with .to_legacy())" if isinstance(mesh, o3d.t.geometry.TriangleMesh) else ""
+        raise TypeError(f"{name} must be an open3d.geometry.TriangleMesh, got {type(mesh).__name__}{hint}")
     return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.triangles, dtype=np.int64)
 
 
@@ -83,8 +87,17 @@ def register(source, target, options: Options | None = None) -> ElasticRegistrat
         Disk-topology meshes (cleanup as in :func:`meshreg.mesh.prepare_disk`); neither is modified.
     options : meshreg.Options, optional
         Mesh preparation and registration settings (resolution, weights, corners1/2, mode, window, ...).
+
+    Raises
+    ------
+    TypeError
+        ``source`` or ``target`` is not an ``open3d.geometry.TriangleMesh`` (None, a point cloud, a tuple).
+    meshreg.InputError
+        A mesh that cannot be made a disk (no triangles, all degenerate, closed, ...) or bad options.
     """
-    mr, c1, c2, (rv, rf, rc) = register_arrays(_arrays(source), _arrays(target), options)
+    mr, c1, c2, (rv, rf, rc) = register_arrays(
+        _arrays(source, "source"), _arrays(target, "target"), options, names=("source", "target")
+    )
     registered = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(rv), o3d.utility.Vector3iVector(rf.astype(np.int32))
     )

@@ -70,7 +70,7 @@ def test_checkpoint_of_another_run_is_refused_and_cut_lines_are_redone(tmp_path)
     seen = []
     again = distance_matrix(grids, jobs=1, checkpoint=path, progress=lambda done, total: seen.append(done))
     assert seen[0] == 2 and seen[-1] == 3 and not again.failures
-    with pytest.raises(InputError, match="another run"):
+    with pytest.raises(InputError, match="other parameters"):
         Checkpoint(path, key="something else")
 
 
@@ -107,38 +107,21 @@ def test_killed_run_resumes_where_it_stopped(tmp_path):
     assert not checkpoint.exists()
 
 
-def test_cli_reports_failed_pairs_and_plots(tmp_path):
+def test_cli_skips_an_unusable_surface_plots_the_rest_and_exits_1(tmp_path):
     files = _write_collection(tmp_path, 11)[:3]
     trimesh.creation.icosphere().export(tmp_path / "closed.stl")
     out = tmp_path / "m" / "D.npz"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "meshreg.cli",
-            "matrix",
-            *map(str, files),
-            str(tmp_path / "closed.stl"),
-            "-o",
-            str(out),
-            "--jobs",
-            "2",
-            "--plot",
-            "-q",
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.count("failed pair") == 3 and "closed" in proc.stdout
+    cmd = [sys.executable, "-m", "meshreg.cli", "matrix", *map(str, files), str(tmp_path / "closed.stl")]
+    proc = subprocess.run([*cmd, "-o", str(out), "--jobs", "2", "--plot", "-q"], capture_output=True, text=True)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.count("\n") == 1 and "3 of 6 pairs have no value" in proc.stderr
+    assert proc.stdout.count("skipped") == 1 and "closed.stl: the surface is closed" in proc.stdout
     result = DistanceMatrix.load(out)
     assert np.isnan(result.distance[3, 0]) and np.isfinite(result.distance[:3, :3]).all()
-    assert len(result.failures) == 3 and out.with_suffix(".png").stat().st_size > 0
-    proc = subprocess.run(
-        [sys.executable, "-m", "meshreg.cli", "matrix", str(files[0]), str(files[1]), "-o", str(files[0])],
-        capture_output=True,
-        text=True,
-    )
+    assert len(result.failures) == 3 and set(result.skipped) == {3}
+    assert out.with_suffix(".png").stat().st_size > 0
+    assert out.with_name("D.npz" + CHECKPOINT_SUFFIX).exists()  # kept: some pairs have no value
+    proc = subprocess.run([*cmd[:5], str(files[1]), "-o", str(files[0])], capture_output=True, text=True)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
 
@@ -150,3 +133,27 @@ def test_meshes_and_grids_mixed_with_round_boundaries(tmp_path):
     d = distance_matrix([(v1, f1), (v2, f2), sample(bump(), 41, 41)], Options(resolution=41), jobs=1)
     assert d.energy[0, 1] <= 0.02  # the scan and its rotated re-triangulated copy: the corner search matters
     assert d.distance[0, 2] > 3 * d.distance[0, 1] and not d.failures
+
+
+def test_a_finished_matrix_is_recognised_and_force_recomputes_it(tmp_path):
+    files = []
+    for k, pair in enumerate(paper_pairs_small()):
+        np.save(tmp_path / f"g{k}.npy", pair.first.points)
+        files.append(str(tmp_path / f"g{k}.npy"))
+    cmd = [sys.executable, "-m", "meshreg.cli", "matrix", *files, "-o", str(tmp_path / "D.npz"), "--jobs", "1"]
+    first = subprocess.run(cmd, capture_output=True, text=True)
+    assert first.returncode == 0 and "3 surfaces, 3 pairs" in first.stdout and "preparing surfaces" in first.stderr
+    stamp = (tmp_path / "D.npz").stat().st_mtime_ns
+    again = subprocess.run(cmd, capture_output=True, text=True)
+    assert again.returncode == 0 and "already holds the finished matrix" in again.stdout
+    assert (tmp_path / "D.npz").stat().st_mtime_ns == stamp  # not rewritten
+    forced = subprocess.run([*cmd, "--force"], capture_output=True, text=True)
+    assert forced.returncode == 0 and "already" not in forced.stdout and (tmp_path / "D.npz").stat().st_mtime_ns > stamp
+    other = subprocess.run([*cmd, "--window", "5"], capture_output=True, text=True)  # other parameters: recomputed
+    assert other.returncode == 0 and "already" not in other.stdout
+
+
+def paper_pairs_small():
+    from meshreg.samples import paper_pairs
+
+    return paper_pairs(11, 11)[:3]

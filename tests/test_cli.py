@@ -1,3 +1,4 @@
+import re
 import subprocess
 import sys
 
@@ -141,3 +142,28 @@ def test_max_starts_option(grid_files, tmp_path):
     one = Registration.load(tmp_path / "one" / "result.npz")
     assert one.params["max_starts"] == 1 and len(one.params["starts"]) == 1
     assert main(args + ["-o", str(tmp_path / "zero"), "--max-starts", "0"]) == 2
+
+
+def test_version_and_a_quick_help_that_loads_no_numerics():
+    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "--version"], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stdout.startswith("meshreg ")
+    code = (
+        "import sys, meshreg.cli; meshreg.cli.build_parser(); "
+        "print(sorted({'numba', 'scipy', 'numpy'} & set(sys.modules)))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.stdout.strip() == "[]"  # --help builds the parser without loading the numerical libraries
+
+
+@pytest.mark.slow
+def test_demo_checks_its_own_answer(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "meshreg.cli", "demo", "-o", str(tmp_path / "d"), "-q"], capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr
+    check = next(line for line in proc.stdout.splitlines() if line.startswith("check:"))
+    angle, scale, error = (
+        float(x) for x in re.findall(r"rotation ([\d.]+) deg.*scale ([\d.]+).* ([\d.]+)% of", check)[0]
+    )
+    assert angle < 1.0 and abs(scale - 2.5) < 0.025 and error < 1.0  # the motion applied and the true correspondence
+    assert (tmp_path / "d" / "view.html").stat().st_size > 1_000_000

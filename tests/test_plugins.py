@@ -78,3 +78,24 @@ def test_missing_extra_names_it(monkeypatch, module, extra):
     monkeypatch.delitem(sys.modules, name, raising=False)
     with pytest.raises(ImportError, match=rf"meshreg\[{extra}\]"):
         importlib.import_module(name)
+
+
+def test_meshlab_prepare_prints_nothing(tmp_path):
+    """pymeshlab's C++ code prints a line per filter of a script; the adapter keeps a user's terminal clean."""
+    v1, f1, _ = random_disk_mesh(bump(), 300, seed=1)
+    v2, f2, _ = random_disk_mesh(bump(), 400, seed=2)
+    for name, (v, f) in (("a.ply", (v1, f1)), ("b.ply", (v2, f2))):
+        import trimesh
+
+        trimesh.Trimesh(v, f, process=False).export(tmp_path / name)
+    code = (
+        "import pymeshlab, meshreg; from meshreg.plugins import meshlab; ms = pymeshlab.MeshSet(); "
+        f"ms.load_new_mesh({str(tmp_path / 'a.ply')!r}); ms.load_new_mesh({str(tmp_path / 'b.ply')!r}); "
+        "meshlab.apply(ms, 0, 1, prepare=True, options=meshreg.Options(resolution=21)); print('done')"
+    )
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "done" and "Reading filter" not in proc.stderr

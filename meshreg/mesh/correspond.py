@@ -51,7 +51,7 @@ class MeshRegistration:
 
 
 def register_meshes(
-    first, second, options: Options | None = None, callback: Progress | None = None
+    first, second, options: Options | None = None, callback: Progress | None = None, names=("first mesh", "second mesh")
 ) -> MeshRegistration:
     """Register two meshes given as (vertices (n, 3), faces (m, 3)): clean, parametrize, resample, register.
 
@@ -69,11 +69,15 @@ def register_meshes(
         ``bend_window=0``, minimize E (:func:`meshreg.pipeline.register_grids`).
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
+    names : (str, str)
+        What to call the meshes in error messages when they are not files (files are called by their paths).
     """
     from ..surfaces import Mesh, as_input
 
     options = options or Options()
-    meshes = [as_input(first, "first"), as_input(second, "second")]
+    side = (options.resolution, options.resolution)
+    options.check_grids(side, side)
+    meshes = [as_input(mesh, name) for mesh, name in zip((first, second), names, strict=True)]
     if not all(isinstance(m, Mesh) for m in meshes):
         raise InputError("register_meshes takes two meshes")
     disks, maps, infos = [], [], {}

@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from ..errors import InputError
+from ..files import MESH_SUFFIXES, existing_file
+from ..grid import check_scale, coordinates
 from .boundary import sharp_corners
 
-MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
+# a mesh whose vertices sit further from the origin than this many times its size has lost the digits of its
+# shape if it was stored in float32 (7 digits): its triangles collapse
+FAR_FROM_ORIGIN = 1e4
 
 
 def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
@@ -24,15 +27,20 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     """
     import trimesh
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(path)
     suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise InputError(
+            f"{path}: unknown mesh file type {suffix or '(no suffix)'!r}: meshes are {' '.join(MESH_SUFFIXES)}"
+        )
     options = {"merge_tex": True, "merge_norm": True, "maintain_order": True} if suffix == ".obj" else {}
     try:
         mesh = trimesh.load(path, process=False, force="mesh", **options)
+    except MemoryError:
+        raise InputError(f"{path}: too large to read into memory") from None
     except Exception as err:  # trimesh raises many types on bad files
-        raise InputError(f"{path}: cannot read mesh ({err})") from None
+        words = str(err).replace(str(path), "").strip(" :'\"")
+        raise InputError(f"{path}: cannot read it as a {suffix} mesh ({type(err).__name__}: {words})") from None
     if suffix in (".stl", ".glb", ".gltf") and len(getattr(mesh, "faces", [])):
         mesh.merge_vertices()  # these formats repeat vertices along seams or per triangle: weld them
     vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=float)
@@ -188,24 +196,42 @@ def prepare_disk(
 
 
 def _checked_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (n, 3) float and faces (m, 3) int, refused when misshapen, not finite or out of range."""
-    v = np.asarray(vertices, dtype=float)
-    f = np.asarray(faces, dtype=np.int64)
+    """Vertices (n, 3) float and faces (m, 3) int, refused when misshapen, empty, not finite real numbers, beyond
+    the coordinate range of :func:`meshreg.grid.check_scale`, or out of range."""
+    v = coordinates(vertices, "mesh vertex coordinates")
+    try:
+        f = np.asarray(faces)
+    except ValueError as err:
+        raise InputError(f"mesh faces are not an array of vertex ids ({err})") from None
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise InputError("a mesh needs vertices (n, 3) and triangular faces (m, 3)")
-    if not np.all(np.isfinite(v)):
-        raise InputError("the mesh has NaN or infinite vertex coordinates: remove or fix those vertices")
+        raise InputError(f"a mesh needs vertices (n, 3) and triangular faces (m, 3), got {v.shape} and {f.shape}")
+    if len(f) == 0 or len(v) == 0:
+        raise InputError("the mesh has no triangles (a point cloud?): give a triangle mesh")
+    if f.dtype.kind not in "iu" and not (f.dtype.kind == "f" and np.all(np.isfinite(f)) and np.all(f == np.round(f))):
+        raise InputError(f"mesh faces must be integer vertex ids, got {f.dtype}")
+    f = f.astype(np.int64)
     if f.min() < 0 or f.max() >= len(v):
         raise InputError("faces refer to vertices that do not exist")
+    check_scale(v, "mesh vertex coordinates")
     return v, f
 
 
 def _drop_degenerate(v: np.ndarray, f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
-    """Faces without the zero-area ones (or an error without ``cleanup``)."""
+    """Faces without the zero-area ones (or an error without ``cleanup``); an error when every one is."""
     area = triangle_areas(v, f)
     bad = (area <= 1e-14 * max(area.max(), 1e-300)) | _repeated_corner(f)
     if not bad.any():
         return f
+    if bad.all():
+        used = v[np.unique(f)]
+        offset, size = float(np.abs(used).max()), float(np.linalg.norm(np.ptp(used, axis=0)))
+        hint = "; its vertices all coincide" if size == 0 else ""
+        if offset > FAR_FROM_ORIGIN * size:
+            hint += (
+                f"; they sit {offset:.1e} from the origin and span {size:.1e}: a float32 file keeps 7 digits, so a "
+                "small mesh far from the origin collapses (move it to the origin before saving it)"
+            )
+        raise InputError(f"all {len(f)} triangles of the mesh are degenerate (zero area){hint}")
     if not cleanup:
         raise InputError(
             f"the mesh has {int(bad.sum())} degenerate (zero-area) triangles: remove them or allow cleanup"
@@ -370,6 +396,21 @@ def _orientation_flips(faces, edges) -> np.ndarray:
     if np.any(check != same):
         raise InputError("the mesh is not orientable (a Moebius-like band): it cannot be mapped to a square")
     return flips
+
+
+def boundary_sizes(faces) -> list[int]:
+    """Edges of each boundary of a triangle mesh, largest first: its boundary edges (used by one triangle) grouped
+    into connected pieces. Works on raw meshes too (a boundary that touches itself counts as one piece)."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return []
+    edges = _boundary_edges(f)
+    if len(edges) == 0:
+        return []
+    n = int(f.max()) + 1
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    labels = connected_components(graph, directed=False)[1][edges[:, 0]]
+    return sorted(np.bincount(labels)[np.unique(labels)].tolist(), reverse=True)
 
 
 def _boundary_edges(faces):

@@ -1,0 +1,136 @@
+"""Files at the edge: which kind of surface a path holds, and writing outputs so that a failed or interrupted run
+never leaves a partial file or a mix of old and new ones.
+
+- :func:`surface_kind` tells a grid file from a mesh by its suffix, and refuses a missing path, a directory or an
+  unknown suffix (listing the known ones) before anything is read.
+- :func:`output_dir` checks, before any computation, that a directory can take a run's outputs (made if missing;
+  not a file, not under a file, writable, no directory in the way of an output, no output on an input).
+- :func:`write_atomic` writes one file under a temporary name in its directory, then renames it into place.
+- :func:`staged` writes a set of files into a temporary directory inside the output directory and moves them
+  into place only when every one was written (the first file named last, so its presence means the set is
+  complete); on an error nothing moves.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from .errors import InputError, RunError
+
+GRID_SUFFIXES = (".npy", ".npz", ".txt", ".dat")  # .txt and .dat: the paper's text format
+MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
+
+
+def reason(err: OSError) -> str:
+    """The words of an OSError without its repeated path ("Permission denied", "No space left on device")."""
+    return err.strerror or str(err) or type(err).__name__
+
+
+def existing_file(path) -> Path:
+    """``path`` as a Path, refused with one line when it is missing or not a regular file."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a directory: give a file")
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    return path
+
+
+def surface_kind(path) -> str:
+    """``"mesh"`` or ``"grid"`` by the suffix of an existing file; InputError for anything else."""
+    path = existing_file(path)
+    suffix = path.suffix.lower()
+    if suffix in MESH_SUFFIXES:
+        return "mesh"
+    if suffix in GRID_SUFFIXES:
+        return "grid"
+    raise InputError(
+        f"{path}: unknown file type {suffix or '(no suffix)'!r}: grids are {' '.join(GRID_SUFFIXES)} "
+        f"(.txt/.dat: the text format 'x y z' per line), meshes {' '.join(MESH_SUFFIXES)}"
+    )
+
+
+def output_dir(path, names, inputs=()) -> Path:
+    """The directory ``path`` made ready for the outputs ``names`` (paths relative to it), or InputError.
+
+    Checked before any computation: ``path`` is not a file nor under one, can be made and written in, holds no
+    directory where an output goes, and no output would overwrite one of ``inputs``.
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out} exists and is not a directory: give another -o")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot make the output directory {out} ({reason(err)}): give another -o") from None
+    given = {Path(p).resolve() for p in inputs}
+    for name in names:
+        target = out / name
+        if target.resolve() in given:
+            raise InputError(f"{target} is an input file: choose another output directory")
+        if target.is_dir():
+            raise InputError(f"{target} is a directory where an output file goes: move it or give another -o")
+        for parent in target.relative_to(out).parents:
+            if (out / parent).exists() and not (out / parent).is_dir():
+                raise InputError(f"{out / parent} is a file where an output directory goes: move it or give another -o")
+    try:
+        probe = tempfile.NamedTemporaryFile(dir=out, prefix=".meshreg-probe-")
+    except OSError as err:
+        raise InputError(f"cannot write in {out} ({reason(err)}): give another -o") from None
+    probe.close()
+    return out
+
+
+def remove_outputs(out: Path, names) -> None:
+    """Remove the files ``names`` in ``out`` left by an earlier run, so that none of them can pass for this run's."""
+    for name in names:
+        target = Path(out) / name
+        if target.is_file() or target.is_symlink():
+            target.unlink()
+
+
+def write_atomic(path, write: Callable[[Path], object]) -> Path:
+    """Write ``path`` by ``write(temporary)`` on a temporary name in the same directory, then rename it into place:
+    ``path`` is either its old content or the whole new one, never a part. OSError becomes a RunError."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")  # the suffix tells savez/savefig the type
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as err:
+        raise RunError(f"cannot write {path} ({reason(err)})") from err
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+@contextmanager
+def staged(out: Path, names: list[str]) -> Iterator[Path]:
+    """Yield a temporary directory inside ``out`` to write the files ``names`` into; when the block ends normally
+    they move into ``out`` (``names[0]``, the result, last), else nothing moves. The temporary directory is removed
+    either way. OSError (a full disk) becomes a RunError."""
+    try:
+        stage = Path(tempfile.mkdtemp(dir=out, prefix=".meshreg-"))
+    except OSError as err:
+        raise RunError(f"cannot write in {out} ({reason(err)})") from None
+    moved = []
+    try:
+        yield stage
+        for name in [*names[1:], names[0]]:
+            (Path(out) / name).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(stage / name, Path(out) / name)
+            moved.append(Path(out) / name)
+    except BaseException as err:
+        for path in moved:
+            path.unlink(missing_ok=True)
+        cause = err.__cause__ if isinstance(err, RunError) else err  # write_atomic's RunError names the stage
+        if isinstance(cause, OSError):
+            raise RunError(f"cannot write the outputs in {out} ({reason(cause)}): no output was written") from None
+        raise
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)

@@ -1,0 +1,604 @@
+"""Every bad input, parameter and fault gets one clear line, and a collection run never loses work (issue 15).
+
+Each test names the defect it covers. Command-line tests check the exit status (2 bad input, 1 a run that did not
+finish its work), one line on stderr naming the problem and what to do, no traceback, inputs unchanged and no
+stale or partial output.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+import meshreg
+from meshreg.batch import CHECKPOINT_SUFFIX, DistanceMatrix, distance_matrix
+from meshreg.cli import main
+from meshreg.errors import InputError, RunError
+from meshreg.grid import GridSurface, read_grid
+from meshreg.mesh.samples import random_disk_mesh
+from meshreg.mesh.topology import prepare_disk
+from meshreg.options import Options
+from meshreg.result import Registration
+from meshreg.samples import bump, helicoid, paper_pairs, sample, sine
+
+
+def _cli(*args, timeout=120):
+    return subprocess.run(
+        [sys.executable, "-m", "meshreg.cli", *map(str, args)], capture_output=True, text=True, timeout=timeout
+    )
+
+
+def _one_line(stderr: str, status: int, code: int, *words: str) -> None:
+    """Exit status ``status`` (got ``code``), exactly one line on stderr holding every word, no traceback."""
+    assert code == status, stderr
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    for word in words:
+        assert word in stderr, stderr
+
+
+def _run_main(capsys, *args) -> tuple[int, str]:
+    code = main([str(a) for a in args])
+    return code, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def grids(tmp_path_factory):
+    """Two 11 x 11 grid files of a same-shape pair, and a directory for the rest."""
+    d = tmp_path_factory.mktemp("grids")
+    pair = paper_pairs(11, 11)[6]
+    np.save(d / "a.npy", pair.first.points)
+    np.save(d / "b.npy", pair.second.points)
+    return d
+
+
+def _collection(directory: Path, n: int = 11) -> list[Path]:
+    files = []
+    for k, g in enumerate(
+        [sample(sine(2), n, n), sample(helicoid(1), n, n), sample(bump(), n, n), sample(sine(3), n, n)]
+    ):
+        files.append(directory / f"s{k}.npy")
+        np.save(files[-1], g.points)
+    return files
+
+
+# 1. size-like parameters are checked against the grid and against stated limits; force lifts them
+
+
+def test_limits_refuse_with_the_figure_and_force_lifts_them():
+    with pytest.raises(InputError, match=r"resolution 1000 gives 1000000 nodes.*limit.*--resolution 401.*--force"):
+        Options(resolution=1000)
+    assert Options(resolution=1000, force=True).resolution == 1000
+    with pytest.raises(InputError, match=r"corner_search 500 costs about 80 s per pair.*--force"):
+        Options(corner_search=500)
+    big = sample(sine(2), 200, 200)
+    with pytest.raises(
+        InputError, match=r"window 199 on a grid of 200 nodes.*one DP solve would take about \d+ s"
+    ) as err:
+        meshreg.register(big, big, mode="dp", window=199)
+    suggested = int(str(err.value).split("give --window ")[1].split()[0])
+    assert 10 <= suggested < 199  # the default window fits; the message names the widest that does
+    huge = sample(sine(2), 402, 402)
+    with pytest.raises(InputError, match=r"402 x 402 grid has 161604 nodes, above the limit"):
+        meshreg.register(huge, huge, mode="dp")
+
+
+def test_a_basis_beyond_the_memory_limit_is_refused_and_a_wide_one_solves():
+    from meshreg.descent import DENSE_LIMIT, _solve
+
+    pair = paper_pairs(101, 101)[0]
+    with pytest.raises(
+        InputError, match=r"basis 40 on a 101 x 101 grid: its 6480 fields need about 4.2 GB.*--basis 27"
+    ):
+        meshreg.register(pair.first, pair.second, basis=40)  # before: 4.3 GB, then a crash
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(DENSE_LIMIT + 10, DENSE_LIMIT + 10))
+    normal, rhs = a @ a.T / len(a), rng.normal(size=len(a))  # a dense system: a global basis of KL >= 23
+    x = _solve(normal, np.full(len(a), 1.0), rhs, 500)
+    assert np.allclose((normal + np.eye(len(a))) @ x, rhs, atol=1e-6)
+
+
+def test_window_wider_than_the_grid_is_the_same_dp_at_its_cost():
+    pair = paper_pairs(21, 21)[1]
+    tic = time.perf_counter()
+    wide = meshreg.register(pair.first, pair.second, mode="dp", window=9000)
+    seconds = time.perf_counter() - tic
+    exact = meshreg.register(pair.first, pair.second, mode="dp", window=20)
+    assert wide.energy == exact.energy and np.array_equal(wide.h, exact.h)
+    assert seconds < 30  # before: steps(9000) alone built 5e7 Python tuples (the 24 GB of --window 100000)
+
+
+def test_cli_refuses_a_resolution_beyond_the_limit_before_any_work(tmp_path):
+    v, f, _ = random_disk_mesh(bump(), 300, seed=1)
+    trimesh.Trimesh(v, f, process=False).export(tmp_path / "a.ply")
+    before = (tmp_path / "a.ply").read_bytes()
+    proc = _cli("register", tmp_path / "a.ply", tmp_path / "a.ply", "-o", tmp_path / "out", "--resolution", 1000, "-q")
+    _one_line(proc.stderr, 2, proc.returncode, "resolution 1000", "--force")
+    assert not (tmp_path / "out").exists() and (tmp_path / "a.ply").read_bytes() == before
+
+
+# 2. a lost pool worker costs only the pair it held; the checkpoint is kept until every pair has a value
+
+
+def _dies_on_three(x):
+    if x == 3:
+        os._exit(7)  # a crash in native code: no exception, no clean-up
+    return {"value": x * x}
+
+
+def _record(function, args):
+    return function(*args)
+
+
+def test_worker_pool_replaces_a_lost_worker_and_loses_only_its_task():
+    from meshreg.workers import run_tasks
+
+    got = {}
+    run_tasks(_dies_on_three, [(k, (k,)) for k in range(8)], 2, got.__setitem__, _record)
+    assert set(got) == set(range(8))
+    assert got[3] == {"error": "worker process lost: it exited with status 7"}
+    assert all(got[k] == {"value": k * k} for k in range(8) if k != 3)
+
+
+FAULT_SCRIPT = """
+import os, sys
+from pathlib import Path
+import multiprocessing
+multiprocessing.set_start_method("fork")
+import meshreg.batch as batch
+marker, original = Path(sys.argv[1]), batch.register_pair
+
+def dying(first, second, options):
+    if first.shape == (13, 13) and not marker.exists():  # the first pair with surface 1 as its first surface
+        marker.write_text(str(os.getpid()))
+        os.kill(os.getpid(), 9)  # what the out-of-memory killer does
+    return original(first, second, options)
+
+batch.register_pair = dying
+from meshreg.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def test_killed_worker_costs_one_pair_and_the_rerun_completes_the_matrix(tmp_path):
+    files = _collection(tmp_path)
+    np.save(files[1], sample(helicoid(1), 13, 13).points)  # the surface whose pair's worker is killed
+    out, checkpoint = tmp_path / "D.npz", tmp_path / ("D.npz" + CHECKPOINT_SUFFIX)
+    (tmp_path / "fault.py").write_text(FAULT_SCRIPT)
+    args = ["matrix", *map(str, files), "-o", str(out), "--jobs", "2", "--mode", "dp", "-q"]
+    proc = subprocess.run(
+        [sys.executable, str(tmp_path / "fault.py"), str(tmp_path / "marker"), *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    _one_line(proc.stderr, 1, proc.returncode, "1 of 6 pairs have no value", str(checkpoint), "rerun")
+    assert "worker process lost: killed by SIGKILL" in proc.stdout
+    first = DistanceMatrix.load(out)
+    (lost,) = first.failures
+    assert lost[0] == 1 and np.isnan(first.distance[lost]) and np.isfinite(first.distance[0, 2])
+    records = [json.loads(line) for line in checkpoint.read_text().splitlines()[1:]]
+    assert len(records) == 6 and sum("error" in r for r in records) == 1  # kept, with the lost pair's reason
+    again = _cli(*args)  # the same command: retries the lost pair, keeps the five others
+    assert again.returncode == 0 and again.stderr == "", again.stderr
+    result = DistanceMatrix.load(out)
+    uninterrupted = distance_matrix(files, Options(mode="dp"), jobs=1)
+    np.testing.assert_allclose(result.distance, uninterrupted.distance, rtol=1e-9, atol=1e-12)
+    for r in records:
+        if "error" not in r:  # finished pairs were taken from the checkpoint, not recomputed
+            assert result.seconds[r["i"], r["j"]] == r["seconds"]
+    assert not result.failures and not checkpoint.exists()
+
+
+def test_failed_pairs_are_retried_on_resume_unless_asked_not_to(tmp_path, finished_checkpoint):
+    files, lines = finished_checkpoint
+    path = tmp_path / "c.jsonl"
+    failed = {**json.loads(lines[2]), "error": "worker process lost: killed by SIGKILL"}
+    for key in ("energy", "rotation", "seconds"):
+        failed.pop(key)
+    path.write_text("\n".join([lines[0], lines[1], json.dumps(failed), lines[3]]) + "\n")
+    kept = distance_matrix(files, jobs=1, checkpoint=path, retry_failed=False)
+    assert kept.failures == {(failed["i"], failed["j"]): failed["error"]}
+    retried = distance_matrix(files, jobs=1, checkpoint=path)
+    assert not retried.failures and np.isfinite(retried.distance).all()
+    assert retried.energy[failed["i"], failed["j"]] == json.loads(lines[2])["energy"]
+
+
+# 3. an unreadable item is reported and skipped; the rest goes on
+
+
+def test_unreadable_items_are_skipped_and_the_rest_is_computed(tmp_path):
+    files = _collection(tmp_path)[:2]
+    (tmp_path / "cut.npz").write_bytes(b"PK\x03\x04" + b"\0" * 20)  # a truncated .npz
+    with open(tmp_path / "huge.npy", "wb") as stream:  # a header claiming 3e10 values
+        np.lib.format.write_array_header_1_0(
+            stream, {"descr": "<f8", "fortran_order": False, "shape": (10**5, 10**5, 3)}
+        )
+    v, f, _ = random_disk_mesh(bump(), 200, seed=3)
+    flat = np.c_[np.arange(len(v)), np.zeros((len(v), 2))]  # every triangle degenerate
+    trimesh.Trimesh(flat, f, process=False).export(tmp_path / "flat.ply")
+    items = [*files, tmp_path / "cut.npz", tmp_path / "huge.npy", tmp_path / "flat.ply"]
+    d = distance_matrix(items, jobs=1)
+    assert np.isfinite(d.distance[0, 1]) and set(d.skipped) == {2, 3, 4}
+    assert "BadZipFile" in d.skipped[2] and "100000 x 100000 x 3 array" in d.skipped[3]
+    assert "degenerate" in d.skipped[4] and len(d.failures) == 9
+
+
+# 4. meshes without usable triangles are refused with one line
+
+
+def test_meshes_without_usable_triangles_are_refused(tmp_path):
+    v, f, _ = random_disk_mesh(bump(), 300, seed=1)
+    far = trimesh.Trimesh((1e-3 * v + 1e5).astype(np.float32), f, process=False)
+    far.export(tmp_path / "far32.ply", encoding="binary")
+    trimesh.Trimesh(v, f, process=False).export(tmp_path / "ok.ply")
+    proc = _cli("register", tmp_path / "far32.ply", tmp_path / "ok.ply", "-o", tmp_path / "out", "-q")
+    _one_line(proc.stderr, 2, proc.returncode, "far32.ply", "degenerate", "float32", "origin")
+    with pytest.raises(InputError, match="no triangles"):
+        prepare_disk(v, np.zeros((0, 3), dtype=int))
+    with pytest.raises(InputError, match="all .* triangles of the mesh are degenerate"):
+        prepare_disk(np.c_[np.arange(len(v)), np.zeros((len(v), 2))], f)
+
+
+# 5. a corrupt checkpoint says what is wrong and how to start over or salvage
+
+
+@pytest.fixture(scope="module")
+def finished_checkpoint(tmp_path_factory):
+    d = tmp_path_factory.mktemp("checkpoint")
+    files = _collection(d)[:3]
+    distance_matrix(files, jobs=1, checkpoint=d / "full.jsonl")
+    return files, (d / "full.jsonl").read_text().splitlines()
+
+
+def _damaged(lines: list, case: str) -> bytes:
+    header, first, *rest = lines
+    record = json.loads(first)
+    bodies = {
+        "not json": [header, "{not json", *rest],
+        "wrong type": [header, json.dumps({**record, "energy": "small"}), *rest],
+        "no pair": [header, json.dumps({**record, "i": 2, "j": 1}), *rest],
+        "bad rotation": [header, json.dumps({**record, "rotation": [[1, 0], [0, 1]]}), *rest],
+        "header": ["[1, 2]", first, *rest],
+    }
+    if case == "not utf-8":
+        return (header + "\n").encode() + b"\xff\xfe\n" + "\n".join(rest).encode() + b"\n"
+    return ("\n".join(bodies[case]) + "\n").encode()
+
+
+@pytest.mark.parametrize(
+    "case, words",
+    [
+        ("not json", ["line 2 is not a pair record", "delete that line", "to start over"]),
+        ("wrong type", ["line 2 holds no energy", "delete that line"]),
+        ("no pair", ["line 2 names no pair of surfaces", "delete that line"]),
+        ("bad rotation", ["line 2 holds no 3 x 3 rotation"]),
+        ("not utf-8", ["line 2 is not UTF-8 text", "delete that line", "to start over"]),
+        ("header", ["is not a meshreg checkpoint", "to start over"]),
+    ],
+)
+def test_corrupt_checkpoint_says_what_is_wrong_and_how_to_salvage(tmp_path, finished_checkpoint, case, words):
+    files, lines = finished_checkpoint
+    path = tmp_path / "c.jsonl"
+    path.write_bytes(_damaged(lines, case))
+    before = path.read_bytes()
+    with pytest.raises(InputError) as err:
+        distance_matrix(files, jobs=1, checkpoint=path)
+    assert all(w in str(err.value) for w in words) and "\n" not in str(err.value), str(err.value)
+    assert path.read_bytes() == before  # refused before anything is written
+
+
+@pytest.mark.parametrize("content", ["", '{"key": "0a'])
+def test_checkpoint_of_a_run_killed_before_its_header_starts_afresh(tmp_path, finished_checkpoint, content):
+    files, lines = finished_checkpoint
+    path = tmp_path / "c.jsonl"
+    path.write_text(content)
+    seen = []
+    d = distance_matrix(files, jobs=1, checkpoint=path, progress=lambda done, total: seen.append(done))
+    assert seen[0] == 0 and not d.failures
+    assert path.read_text().splitlines()[0] == lines[0] and len(path.read_text().splitlines()) == 4
+
+
+def test_cli_corrupt_checkpoint_one_line(tmp_path, finished_checkpoint):
+    files, lines = finished_checkpoint
+    out = tmp_path / "D.npz"
+    Path(str(out) + CHECKPOINT_SUFFIX).write_bytes(_damaged(lines, "no pair"))
+    proc = _cli("matrix", *files, "-o", out, "--jobs", 1, "-q")
+    _one_line(proc.stderr, 2, proc.returncode, "line 2 names no pair", "delete that line")
+    assert not out.exists()
+
+
+# 6. the output place is checked before computing; outputs are written all together or not at all
+
+
+@pytest.mark.parametrize(
+    "where, words",
+    [
+        ("a.npy/out", ["cannot make the output directory", "give another -o"]),
+        ("a.npy", ["exists and is not a directory"]),
+        ("blocked", ["result.npz is a directory where an output file goes"]),
+        ("unwritable", ["give another -o"]),
+    ],
+)
+def test_bad_output_place_is_refused_before_computing(tmp_path, grids, where, words):
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    a.write_bytes((grids / "a.npy").read_bytes())
+    b.write_bytes((grids / "b.npy").read_bytes())
+    (tmp_path / "blocked" / "result.npz").mkdir(parents=True)
+    if where == "unwritable":
+        if os.geteuid() == 0:  # root writes anywhere but in /sys
+            out = Path("/sys/kernel/meshreg-out")
+            if not Path("/sys/kernel").is_dir():
+                pytest.skip("no unwritable directory for root here")
+        else:
+            (tmp_path / "ro").mkdir()
+            (tmp_path / "ro").chmod(0o555)
+            out = tmp_path / "ro" / "out"
+    else:
+        out = tmp_path / where
+    before, listing = a.read_bytes(), sorted(tmp_path.rglob("*"))
+    proc = _cli("register", a, b, "-o", out, "-q")
+    _one_line(proc.stderr, 2, proc.returncode, *words)
+    assert a.read_bytes() == before and sorted(tmp_path.rglob("*")) == listing  # nothing written anywhere
+
+
+def test_a_failed_write_leaves_neither_partial_nor_older_outputs(tmp_path, grids, capsys, monkeypatch):
+    out = tmp_path / "out"
+    args = ["register", grids / "a.npy", grids / "b.npy", "-o", out, "-q", "--mode", "dp"]
+    assert _run_main(capsys, *args, "--symmetric")[0] == 0
+    assert {p.name for p in out.iterdir()} == {"result.npz", "result_reverse.npz", "registration.png"}
+
+    def full_disk(self, path, **extra):
+        Path(path).write_bytes(b"half a file")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Registration, "_save", full_disk)
+    code, err = _run_main(capsys, *args)
+    _one_line(err, 1, code, "No space left on device", "no output was written")
+    assert list(out.iterdir()) == []  # no partial file, no staging directory, no older result passing for this run's
+    monkeypatch.undo()
+    assert _run_main(capsys, *args, "--symmetric")[0] == 0
+    assert _run_main(capsys, *args)[0] == 0
+    assert {p.name for p in out.iterdir()} == {"result.npz", "registration.png"}  # the older reverse result is gone
+
+
+# 7. every parameter is validated once, up front, naming its valid range
+
+
+@pytest.mark.parametrize(
+    "flags, words",
+    [
+        (["--basis", "0"], ["basis must be an integer from 1 to 40"]),
+        (["--basis", "60"], ["basis must be an integer from 1 to 40"]),
+        (["--start-basis", "0"], ["start_basis"]),
+        (["--smoothing", "1e9"], ["smoothing must be standard deviations in (0, 1]"]),
+        (["--resolution", "-5"], ["resolution must be an integer from 3"]),
+        (["--max-rounds", "-1"], ["max_rounds must be an integer from 1"]),
+        (["--window", "abc"], ["--window: invalid int value", "--help"]),
+        (["--grid", "-5", "3"], ["--grid must be two integers >= 3"]),
+    ],
+)
+def test_bad_register_parameters_one_line_before_any_work(tmp_path, grids, capsys, flags, words):
+    args = ["register", grids / "a.npy", grids / "b.npy", "-o", tmp_path / "out", "-q", *flags]
+    if flags[0] == "--window":
+        with pytest.raises(SystemExit) as exit_:
+            main([str(a) for a in args])
+        code, err = exit_.value.code, capsys.readouterr().err
+    else:
+        code, err = _run_main(capsys, *args)
+    _one_line(err, 2, code, *words)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    "flags, words",
+    [
+        (["--jobs", "0"], ["jobs must be a whole number of worker processes, 1 or more"]),
+        (["--jobs", "100000"], ["100000 worker processes", "--force"]),
+        (["--scheduler", "notaurl"], ["--scheduler must be a Dask scheduler address like tcp://host:8786"]),
+    ],
+)
+def test_bad_matrix_parameters_one_line_before_any_work(tmp_path, grids, capsys, flags, words):
+    code, err = _run_main(capsys, "matrix", grids / "a.npy", grids / "b.npy", "-o", tmp_path / "D.npz", "-q", *flags)
+    _one_line(err, 2, code, *words)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_other_api_parameters_are_checked():
+    for changes in ({"search": "no"}, {"corners1": (1, 1, 2, 3)}, {"force": 1}):
+        with pytest.raises(InputError, match=next(iter(changes))):
+            Options(**changes)
+    with pytest.raises(InputError, match="jobs"):
+        distance_matrix([sample(sine(2), 11, 11)] * 2, jobs=0)
+    with pytest.raises(InputError, match="grid must be an integer from 3"):
+        from meshreg.paper import run_paper
+
+        run_paper(-5)
+
+
+# 8. a matrix run in which no pair has a value exits 1, writes and plots nothing
+
+
+def test_all_failed_matrix_exits_1_and_writes_nothing(tmp_path, grids):
+    trimesh.creation.icosphere().export(tmp_path / "closed.stl")
+    out = tmp_path / "D.npz"
+    out.write_bytes(b"an older matrix")
+    out.with_suffix(".png").write_bytes(b"an older figure")
+    proc = _cli("matrix", grids / "a.npy", tmp_path / "closed.stl", "-o", out, "--plot", "-q")
+    _one_line(proc.stderr, 1, proc.returncode, "1 of 1 pairs have no value")
+    assert "skipped" in proc.stdout and "closed" in proc.stdout
+    assert not out.exists() and not out.with_suffix(".png").exists()  # neither new nor older ones
+
+
+# 9. SIGTERM stops every process of the run and keeps the finished pairs
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(x) for x in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except FileNotFoundError:
+        return []
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc")
+def test_sigterm_leaves_no_process_behind(tmp_path):
+    files = _collection(tmp_path, 21)
+    out, checkpoint = tmp_path / "D.npz", tmp_path / ("D.npz" + CHECKPOINT_SUFFIX)
+    cmd = [sys.executable, "-m", "meshreg.cli", "matrix", *map(str, files), "-o", str(out), "--jobs", "2", "-q"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    workers, deadline = [], time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        workers = _children(proc.pid)
+        if len(workers) == 2 and checkpoint.exists() and len(checkpoint.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.02)
+    assert len(workers) == 2, "the run ended before it could be interrupted"
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)  # returns only once no process holds the pipes
+    _one_line(stderr, 143, proc.returncode, "interrupted", str(checkpoint), "rerun the same command to resume")
+    assert not any(Path(f"/proc/{pid}").exists() for pid in workers)
+    assert len(checkpoint.read_text().splitlines()) >= 2 and not out.exists()
+
+
+# 10. values that would register silently wrong are refused
+
+
+@pytest.mark.parametrize(
+    "points, words",
+    [
+        (sample(sine(2), 5, 5).points + 1j, "complex"),
+        (sample(sine(2), 5, 5).points > 0, "booleans"),
+        (1e80 * sample(sine(2), 5, 5).points, r"reach 1\.0e\+80: areas overflow"),
+        (1e-60 * sample(sine(2), 5, 5).points, "span only"),
+        (np.stack([*np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1e-12, 5)), np.zeros((5, 5))], -1), "sliver"),
+        ([[[0, 0, 0]] * 3, [[1, 0, 0]] * 2], "not an array of numbers"),
+    ],
+)
+def test_values_that_would_register_wrong_are_refused(points, words):
+    with pytest.raises(InputError, match=words):
+        meshreg.register(points, sample(sine(2), 5, 5))
+
+
+def test_hand_built_grid_surfaces_are_checked():
+    good = sample(sine(2), 5, 5)
+    with pytest.raises(InputError, match="partition r must be 5 finite values increasing strictly from 0 to 1"):
+        GridSurface(good.points, good.r[::-1].copy(), good.t)
+    with pytest.raises(InputError, match="NaN"):
+        GridSurface(np.where(good.points > 0.5, np.nan, good.points), good.r, good.t)
+
+
+def test_scale_and_position_do_not_change_e():
+    pair = paper_pairs(21, 21)[0]
+    unit = meshreg.register(pair.first, pair.second, mode="dp")
+    far = meshreg.register(1e40 * pair.first.points, 1e-40 * pair.second.points + 3.0e-40, mode="dp")
+    assert far.energy == pytest.approx(unit.energy, rel=1e-6, abs=1e-12)
+
+
+# 11. unreadable files never escape as BadZipFile or MemoryError
+
+
+def test_truncated_and_huge_files_are_input_errors(tmp_path, grids):
+    good = (grids / "a.npy").read_bytes()
+    (tmp_path / "cut.npy").write_bytes(good[: len(good) // 2])
+    np.savez(tmp_path / "whole.npz", points=np.load(grids / "a.npy"))
+    whole = (tmp_path / "whole.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(whole[: len(whole) // 2])
+    with open(tmp_path / "huge.npy", "wb") as stream:
+        np.lib.format.write_array_header_1_0(
+            stream, {"descr": "<f8", "fortran_order": False, "shape": (10**5, 10**5, 3)}
+        )
+    for name, words in (("cut.npy", "cannot read"), ("cut.npz", "BadZipFile"), ("huge.npy", "above the")):
+        with pytest.raises(InputError, match=words):
+            read_grid(tmp_path / name)
+    with pytest.raises(InputError, match="not a meshreg result file"):
+        Registration.load(tmp_path / "cut.npz")
+    with pytest.raises(InputError, match="not a meshreg distance matrix"):
+        DistanceMatrix.load(tmp_path / "cut.npz")
+
+
+# 12. messages name the problem once and list what is supported
+
+
+def test_messages_for_unknown_suffix_folder_and_grid_size(tmp_path, grids, capsys):
+    (tmp_path / "points.xyz").write_bytes(b"\xff\xfe garbage")
+    code, err = _run_main(capsys, "register", tmp_path / "points.xyz", grids / "b.npy", "-o", tmp_path / "o", "-q")
+    _one_line(err, 2, code, "unknown file type '.xyz'", ".npy .npz .txt .dat", ".ply")
+    assert err.count("points.xyz") == 1
+    code, err = _run_main(capsys, "register", tmp_path, grids / "b.npy", "-o", tmp_path / "o", "-q")
+    _one_line(err, 2, code, "is a directory: give a file")
+    (tmp_path / "g.txt").write_text("-5 3\n" + "0 0 0\n" * 15)
+    code, err = _run_main(capsys, "register", tmp_path / "g.txt", grids / "b.npy", "-o", tmp_path / "o", "-q")
+    _one_line(err, 2, code, "the first line 'M N' must be two integers >= 3")
+    assert err.count("g.txt") == 1 and not (tmp_path / "o").exists()
+
+
+# 13. adapters: MeshLab prepare keeps a clean disk's boundary and leaves the MeshSet as it was; Open3D types
+
+
+def _meshset(*meshes):
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    for v, f in meshes:
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v) if f is None else pymeshlab.Mesh(vertex_matrix=v, face_matrix=f))
+    return ms
+
+
+def test_meshlab_prepare_keeps_the_outer_boundary_of_a_clean_disk():
+    from meshreg.plugins import meshlab
+
+    v1, f1, _ = random_disk_mesh(bump(), 400, seed=1)
+    v2, f2, _ = random_disk_mesh(bump(), 500, seed=2)
+    assert len(trimesh.Trimesh(v1, f1, process=False).outline().entities[0].points) < 300
+    ms = _meshset((v1, f1), (v2, f2))
+    info = meshlab.apply(ms, 0, 1, prepare=True, options=Options(resolution=21))
+    assert info["energy"] < 0.02 and ms.mesh_number() == 5
+
+
+def test_meshlab_failure_leaves_the_meshset_as_it_was():
+    from meshreg.plugins import meshlab
+
+    v, f, _ = random_disk_mesh(bump(), 300, seed=1)
+    sphere = trimesh.creation.icosphere(2)
+    ms = _meshset((v, f), (v, None), (sphere.vertices, sphere.faces))
+    for second, prepare, words in (
+        (1, True, "layer 1 has no triangles"),
+        (1, False, "point cloud"),
+        (2, True, "closed"),
+    ):
+        ms.set_current_mesh(0)
+        with pytest.raises(InputError, match=words):
+            meshlab.apply(ms, 0, second, prepare=prepare, options=Options(resolution=21))
+        assert ms.mesh_number() == 3 and ms.current_mesh_id() == 0
+
+
+def test_open3d_wrong_types_are_type_errors():
+    import open3d as o3d
+
+    from meshreg.plugins import open3d as mo3d
+
+    v, f, _ = random_disk_mesh(bump(), 300, seed=1)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32)))
+    for bad in (None, o3d.geometry.PointCloud(o3d.utility.Vector3dVector(v)), (v, f)):
+        with pytest.raises(TypeError, match="must be an open3d.geometry.TriangleMesh, got"):
+            mo3d.register(bad, mesh)
+    empty = o3d.geometry.TriangleMesh(mesh.vertices, o3d.utility.Vector3iVector(np.zeros((0, 3), np.int32)))
+    with pytest.raises(InputError, match="source: the mesh has no triangles"):
+        mo3d.register(empty, mesh)
+
+
+def test_run_error_is_exit_status_1(capsys, monkeypatch):
+    import meshreg.paper
+
+    def fails(*args, **kwargs):
+        raise RunError("a run that could not finish")
+
+    monkeypatch.setattr(meshreg.paper, "run_paper", fails)
+    code, err = _run_main(capsys, "paper", "-q")
+    _one_line(err, 1, code, "a run that could not finish")
