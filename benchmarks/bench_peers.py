@@ -13,8 +13,10 @@ second's vertices that have a true point (those over the first: the overlap, for
 
 Tools, all on the same meshes:
 
-- ``meshreg``: the command line's default (``register_meshes(a, b, Options())``), each vertex of the second mapped
-  through the registration to the first's square and onto the first mesh; E is printed beside it.
+- ``meshreg``: the command line's default (``register_meshes(a, b, Options())``: corners by the boundary's turning
+  within the surface, the square's symmetry by E_w, E_w descended from the parametrization; docs/bending.md), each
+  vertex of the second mapped through the registration to the first's square and onto the first mesh; E (at the
+  answer) and E_w (what was minimized) are printed beside it.
 - ``param``: the parametrization alone, no optimization: the two harmonic maps to the square with the corners
   meshreg chose, corresponding points sharing uv up to the symmetry of the square meshreg chose (h = sigma; the
   boundary loops start at arbitrary corners, so h = identity alone means nothing); seconds: the mesh preparation.
@@ -36,13 +38,15 @@ vertex by inverse-distance weighting of the 8 nearest subsample displacements. A
 each vertex of the second its closest point on the first (that projection is not timed). A peer that is not
 installed (``pip install 'meshreg[bench]'``) is skipped with a line that says so.
 
-``--diagnose`` adds, on full-overlap pairs: the parametrization under the symmetry closest to the truth (an
-oracle); meshreg and the parametrization without the square's symmetries; both with the true corners (the first's
+``--diagnose`` adds, on full-overlap pairs: meshreg minimizing E itself (``bend_window=0``, the method before issue
+14); the parametrization under the symmetry closest to the truth (an oracle); meshreg and the parametrization
+without the square's symmetries; both with the true corners (the first's
 corners as meshreg chose them, the second's at the boundary vertices whose true points are nearest to those,
 :func:`meshreg.mesh.deform.material_corners`), the parametrization also with the oracle symmetry; and E at
 meshreg's answer, at h = the symmetry it chose and at the true map (each at its best rotation).
 
-Timings are wall-clock seconds on a shared machine: compare them within one run, not across runs.
+Timings: wall-clock seconds and CPU seconds of the process (all its threads) on a shared machine: compare them
+within one run, not across runs.
 """
 
 from __future__ import annotations
@@ -103,12 +107,14 @@ def pair_builders(quick: bool) -> dict:
 
 @dataclass
 class Outcome:
-    """One tool's prediction on one pair: points (n2, 3) on the first mesh (NaN: none), seconds, a note."""
+    """One tool's prediction on one pair: points (n2, 3) on the first mesh (NaN: none), wall and CPU seconds, a
+    note."""
 
     points: np.ndarray | None
     seconds: float
     note: str = ""
     extra: dict = field(default_factory=dict)
+    cpu: float = float("nan")
 
 
 # ---- meshreg and the parametrization alone
@@ -117,11 +123,14 @@ class Outcome:
 def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, MeshRegistration]:
     """meshreg's prediction and the parametrization-alone baseline from the same run."""
     n2 = len(pair.second[0])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     mr = register_meshes(pair.first, pair.second, options)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     energy = mr.result.energy
-    found = Outcome(deform.matched_points(mr, n2), seconds, f"E = {energy:.3g}", {"E": energy})
+    note = f"E = {energy:.3g}"
+    if "bend_energy" in mr.result.params:
+        note += f", E_w = {mr.result.params['bend_energy']:.3g}"
+    found = Outcome(deform.matched_points(mr, n2), seconds, note, {"E": energy}, cpu)
     note = f"h = symmetry {mr.result.symmetry} of the square (meshreg's)"
     baseline = Outcome(deform.parametrization_points(mr, n2), seconds - mr.result.timings["total"], note)
     return found, baseline, mr
@@ -143,15 +152,17 @@ class Frames:
     factor: float
     mesh_a: object
     poses: dict = field(default_factory=dict)
-    borrowed: float = 0.0
+    borrowed: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     def pose(self, key: str, make):
-        """A start shared by several peers (made once): its seconds are added to every peer that uses it."""
+        """A start shared by several peers (made once): its wall and CPU seconds are added to every peer that uses
+        it."""
         if key not in self.poses:
-            t0 = time.perf_counter()
-            self.poses[key] = (make(self), time.perf_counter() - t0)
+            t0, c0 = time.perf_counter(), time.process_time()
+            pose = make(self)
+            self.poses[key] = (pose, np.array([time.perf_counter() - t0, time.process_time() - c0]))
         else:
-            self.borrowed += self.poses[key][1]
+            self.borrowed = self.borrowed + self.poses[key][1]
         return self.poses[key][0]
 
     def to_first(self, moved_b: np.ndarray) -> np.ndarray:
@@ -384,6 +395,8 @@ def oracle_param(pair: deform.Pair, mr: MeshRegistration) -> Outcome:
 def diagnose(pair: deform.Pair, mr: MeshRegistration, rows: list) -> list[str]:
     """Rows telling where meshreg's error comes from (corners, the symmetry, the optimization) and lines of E."""
     c1, c2 = deform.material_corners(pair, mr)
+    found, _, _ = run_meshreg(pair, Options(bend_window=0.0))
+    rows += [row(pair, "meshreg, bend_window=0 (minimizes E)", found)]
     rows.append(row(pair, "param, best symmetry", oracle_param(pair, mr)))
     found, baseline, _ = run_meshreg(pair, Options(symmetries=False))
     rows += [row(pair, "meshreg, symmetries=False", found), row(pair, "param, symmetries=False", baseline)]
@@ -405,11 +418,11 @@ def fmt_energies(e: dict) -> str:
 
 def row(pair: deform.Pair, tool: str, outcome: Outcome) -> tuple:
     if outcome.points is None:
-        return (pair.name, tool, "", "", "", outcome.note)
+        return (pair.name, tool, "", "", "", "", outcome.note)
     err = pair.errors(outcome.points)
     med, p90 = np.percentile(err, [50, 90])
-    seconds = "" if np.isnan(outcome.seconds) else f"{outcome.seconds:.1f}"
-    return (pair.name, tool, f"{med:.4f}", f"{p90:.4f}", seconds, outcome.note)
+    seconds, cpu = ("" if np.isnan(x) else f"{x:.1f}" for x in (outcome.seconds, outcome.cpu))
+    return (pair.name, tool, f"{med:.4f}", f"{p90:.4f}", seconds, cpu, outcome.note)
 
 
 def machine_line() -> str:
@@ -458,18 +471,18 @@ def main(argv=None):
                 notes += diagnose(pair, mr, rows)
         fr = frames(pair) if peers else None
         for tool in peers:
-            t0, fr.borrowed = time.perf_counter(), 0.0
+            t0, c0, fr.borrowed = time.perf_counter(), time.process_time(), np.zeros(2)
             try:
                 moved = PEERS[tool][0](fr)
-                seconds = time.perf_counter() - t0 + fr.borrowed
-                outcome = Outcome(fr.to_first(moved), seconds)
+                seconds = time.perf_counter() - t0 + fr.borrowed[0]
+                outcome = Outcome(fr.to_first(moved), seconds, cpu=time.process_time() - c0 + fr.borrowed[1])
             except Exception as err:  # a peer failing on a pair is a result, not a crash of the benchmark
                 outcome = Outcome(None, time.perf_counter() - t0, f"failed: {type(err).__name__}: {err}"[:100])
             rows.append(row(pair, tool, outcome))
         print(f"{name} done", file=sys.stderr, flush=True)
     print()
-    print("| pair | tool | median | p90 | seconds | note |")
-    print("|---|---|---|---|---|---|")
+    print("| pair | tool | median | p90 | seconds | CPU s | note |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
         print("| " + " | ".join(r) + " |")
     print()

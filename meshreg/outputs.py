@@ -181,6 +181,7 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
             stage / FIGURE_FILE,
             title=title,
             stages=result.energy_stages,
+            **({"minimized": "E_w (E with local rotations)"} if "bend_energy" in result.params else {}),
         )
         if html:
             from .view import write_view
