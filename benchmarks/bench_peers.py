@@ -4,6 +4,7 @@
     python benchmarks/bench_peers.py --quick               # small meshes: 9 min, 5 min of CPU
     python benchmarks/bench_peers.py --pairs roll-90 fold-90 --tools meshreg param open3d
     python benchmarks/bench_peers.py --diagnose --tools meshreg param --pairs fold-90 roll-90 roll-180
+    python benchmarks/bench_peers.py --tools meshreg param --option bend_window=0.03 advanced.refine_triangles=0
     python benchmarks/bench_peers.py --list
 
 Pairs (:mod:`meshreg.mesh.deform`): each gives, for every vertex of the second mesh, its true corresponding point on
@@ -52,6 +53,7 @@ within one run, not across runs.
 from __future__ import annotations
 
 import argparse
+import ast
 import datetime
 import os
 import platform
@@ -63,7 +65,7 @@ import numpy as np
 from scipy.interpolate import NearestNDInterpolator
 from scipy.spatial import cKDTree
 
-from meshreg import Options
+from meshreg import Advanced, Options
 from meshreg.mesh import deform
 from meshreg.mesh.correspond import MeshRegistration, register_meshes
 from meshreg.mesh.topology import triangle_areas
@@ -392,15 +394,15 @@ def oracle_param(pair: deform.Pair, mr: MeshRegistration) -> Outcome:
     return Outcome(tried[k], float("nan"), f"symmetry {k} (oracle)")
 
 
-def diagnose(pair: deform.Pair, mr: MeshRegistration, rows: list) -> list[str]:
+def diagnose(pair: deform.Pair, mr: MeshRegistration, rows: list, options: Options) -> list[str]:
     """Rows telling where meshreg's error comes from (corners, the symmetry, the optimization) and lines of E."""
     c1, c2 = deform.material_corners(pair, mr)
-    found, _, _ = run_meshreg(pair, Options(bend_window=0.0))
+    found, _, _ = run_meshreg(pair, options.replace(bend_window=0.0))
     rows += [row(pair, "meshreg, bend_window=0 (minimizes E)", found)]
     rows.append(row(pair, "param, best symmetry", oracle_param(pair, mr)))
-    found, baseline, _ = run_meshreg(pair, Options(symmetries=False))
+    found, baseline, _ = run_meshreg(pair, options.replace(symmetries=False))
     rows += [row(pair, "meshreg, symmetries=False", found), row(pair, "param, symmetries=False", baseline)]
-    found, baseline, run = run_meshreg(pair, Options(corners1=c1, corners2=c2))
+    found, baseline, run = run_meshreg(pair, options.replace(corners1=c1, corners2=c2))
     rows += [row(pair, "meshreg, true corners", found), row(pair, "param, true corners", baseline)]
     rows.append(row(pair, "param, true corners, best symmetry", oracle_param(pair, run)))
     return [
@@ -436,6 +438,16 @@ def machine_line() -> str:
     return f"{today}, {cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
 
 
+def meshreg_options(settings: list[str]) -> Options:
+    """Options from NAME=VALUE strings (values as Python literals; ``advanced.NAME`` sets an Advanced field)."""
+    top, advanced = {}, {}
+    for setting in settings:
+        name, _, value = setting.partition("=")
+        target = advanced if name.startswith("advanced.") else top
+        target[name.removeprefix("advanced.")] = ast.literal_eval(value)
+    return Options(**top, advanced=Advanced(**advanced))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     builders_all = pair_builders(False)
@@ -444,9 +456,17 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="small meshes (about 5 min of CPU)")
     parser.add_argument("--diagnose", action="store_true", help="meshreg without symmetries, with true corners; E")
     parser.add_argument("--list", action="store_true", help="list the pairs and how they are made, then stop")
+    parser.add_argument(
+        "--option",
+        nargs="+",
+        default=[],
+        metavar="NAME=VALUE",
+        help="meshreg's options (fields of meshreg.Options; advanced.NAME for meshreg.Advanced), e.g. bend_window=0",
+    )
     args = parser.parse_args(argv)
+    options = meshreg_options(args.option)
     builders = pair_builders(args.quick)
-    print(f"# bench_peers{' --quick' if args.quick else ''}: {machine_line()}")
+    print(f"# bench_peers{' --quick' if args.quick else ''}{''.join(' ' + o for o in args.option)}: {machine_line()}")
     if args.list:
         for name in args.pairs:
             p = builders[name]()
@@ -465,10 +485,10 @@ def main(argv=None):
             f"largest edge-length ratio of the deformation {pair.info['edge_ratio']:.3g}"
         )
         if {"meshreg", "param"} & set(args.tools) or args.diagnose:
-            found, baseline, mr = run_meshreg(pair, Options())
+            found, baseline, mr = run_meshreg(pair, options)
             rows += [row(pair, t, o) for t, o in (("meshreg", found), ("param", baseline)) if t in args.tools]
             if args.diagnose and not pair.partial:
-                notes += diagnose(pair, mr, rows)
+                notes += diagnose(pair, mr, rows, options)
         fr = frames(pair) if peers else None
         for tool in peers:
             t0, c0, fr.borrowed = time.perf_counter(), time.process_time(), np.zeros(2)
