@@ -132,6 +132,9 @@ def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, 
     note = f"E = {energy:.3g}"
     if "bend_energy" in mr.result.params:
         note += f", E_w = {mr.result.params['bend_energy']:.3g}"
+        ranked = [s["choice_energy"] for s in mr.result.params["starts"]]
+        if len(ranked) > 1:  # how clearly E_w at the start picked the square's symmetry
+            note += f", symmetry {mr.result.symmetry}: next E_w {ranked[1] / ranked[0]:.2f} x"
     found = Outcome(deform.matched_points(mr, n2), seconds, note, {"E": energy}, cpu)
     note = f"h = symmetry {mr.result.symmetry} of the square (meshreg's)"
     baseline = Outcome(deform.parametrization_points(mr, n2), seconds - mr.result.timings["total"], note)
