@@ -213,7 +213,10 @@ class Options:
     cleanup : bool
         Repair meshes (holes, pieces, pinched vertices, ears) instead of refusing them. Default True.
     corners1, corners2 : tuple of 4 int or None
-        Corner vertex ids of each mesh's boundary (ids in the mesh as given). Default: chosen.
+        Corner vertex ids of each mesh's boundary (ids in the mesh as given), in their order around the boundary
+        (either way round): the first becomes (0, 0) of the square, and given for both meshes, corner k of one
+        is matched with corner k of the other. Default: chosen (the boundary's four clear turns within the
+        surface, else a search; see :mod:`meshreg.mesh.corners`).
     corner_search : int
         Trial corner placements of the second mesh when the boundaries have no four clear corners; 0 turns
         the search off. Default 8.
@@ -426,7 +429,7 @@ FLAGS: tuple[Flag, ...] = (
     Flag(
         "--corners1",
         "corners1",
-        "corner vertex ids of the first mesh's boundary",
+        "corner vertex ids of the first mesh's boundary, in order around it (the first becomes (0, 0))",
         int,
         nargs=4,
         metavar="ID",
@@ -435,7 +438,7 @@ FLAGS: tuple[Flag, ...] = (
     Flag(
         "--corners2",
         "corners2",
-        "corner vertex ids of the second mesh's boundary",
+        "corner vertex ids of the second mesh's boundary, in order around it (matched with --corners1)",
         int,
         nargs=4,
         metavar="ID",
@@ -444,11 +447,11 @@ FLAGS: tuple[Flag, ...] = (
     Flag(
         "--bend-window",
         "bend_window",
-        "mode auto: width (side lengths) of the windows whose own rotations let a mesh bend without cost; "
-        "0 = minimize E itself (default 0.05)",
+        "two meshes, mode auto: width (side lengths of the square) of the windows in which E_w lets the surface "
+        "bend at no cost; 0 = minimize E itself (default 0.05)",
         float,
         metavar="W",
-        group="meshes",
+        group="bending",
     ),
     Flag(
         "--corner-search",
@@ -465,7 +468,7 @@ def _dest(row: Flag) -> str:
     return "opt_" + row.field.replace(".", "__")
 
 
-def add_flags(parser, groups=("registration", "meshes", "corners")) -> None:
+def add_flags(parser, groups=("registration", "meshes", "corners", "bending")) -> None:
     """Add the flags of :data:`FLAGS` in ``groups`` to an argparse parser (defaults left to :class:`Options`)."""
     sections = {}
     for row in FLAGS:
