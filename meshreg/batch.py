@@ -87,7 +87,8 @@ def prepare_surface(item, name: str | None = None, options: Options | None = Non
 
 
 def register_pair(first: GridSurface, second: GridSurface | list, options: Options) -> dict:
-    """One pair's numbers: energy, rotation (3 x 3 list), seconds (and the chosen corner placement when
+    """One pair's numbers: energy, coordinate residual, number of equally good alternative correspondences,
+    rotation (3 x 3 list), seconds (and the chosen corner placement when
     ``second`` is a list of a round-boundary mesh's placements, ranked as in ``meshreg register``). Runs in
     a worker process.
 
@@ -95,7 +96,13 @@ def register_pair(first: GridSurface, second: GridSurface | list, options: Optio
     5-10x slower on a 2-core machine, and one pair per core is the parallelism that pays.
     """
     result, record = registered_pair(first, second, options)
-    return {"energy": result.energy, "rotation": result.rotation.tolist(), **record}
+    return {
+        "energy": result.energy,
+        "residual": result.residual,
+        "alternatives": len(result.alternatives),
+        "rotation": result.rotation.tolist(),
+        **record,
+    }
 
 
 def registered_pair(first: GridSurface, second: GridSurface | list, options: Options) -> tuple[Registration, dict]:
@@ -138,6 +145,9 @@ class DistanceMatrix:
         The registration and preparation parameters used.
     skipped : dict
         ``k -> reason`` for surfaces that could not be read or prepared (every pair with them has no value).
+    residual : ndarray (N, N)
+        The coordinate residual of pair (i, j), i < j (:attr:`meshreg.Registration.residual`), symmetric; NaN
+        where the pair has no value (and in matrices saved before it was recorded).
     """
 
     names: list
@@ -148,6 +158,7 @@ class DistanceMatrix:
     failures: dict = field(default_factory=dict)
     params: dict = field(default_factory=dict)
     skipped: dict = field(default_factory=dict)
+    residual: np.ndarray | None = None
 
     def save(self, path) -> None:
         """Write ``.npz`` atomically (temporary file in the same directory, then rename; RunError on OSError)."""
@@ -165,6 +176,7 @@ class DistanceMatrix:
                 failures=np.array(failures, dtype=str),
                 skipped=np.array(skipped, dtype=str),
                 params=json.dumps(self.params),
+                residual=np.full_like(self.distance, np.nan) if self.residual is None else self.residual,
             ),
         )
 
@@ -190,6 +202,7 @@ class DistanceMatrix:
                     failures,
                     json.loads(str(data["params"])),
                     skipped,
+                    data["residual"] if "residual" in data else np.full(data["distance"].shape, np.nan),
                 )
         except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as err:
             raise InputError(f"{path}: not a meshreg distance matrix file ({type(err).__name__}: {err})") from None
@@ -406,6 +419,7 @@ def _assemble(names, done: dict, params: dict, skipped: dict) -> DistanceMatrix:
     n = len(names)
     energy = np.full((n, n), np.nan)
     np.fill_diagonal(energy, 0.0)
+    residual = energy.copy()
     rotations = np.tile(np.eye(3), (n, n, 1, 1))
     seconds = np.zeros((n, n))
     failures = {}
@@ -421,8 +435,9 @@ def _assemble(names, done: dict, params: dict, skipped: dict) -> DistanceMatrix:
                 failures[i, j] = record["error"]
             else:
                 energy[i, j] = energy[j, i] = record["energy"]
+                residual[i, j] = residual[j, i] = record.get("residual", np.nan)
                 rotations[i, j] = record["rotation"]
                 rotations[j, i] = np.transpose(record["rotation"])
                 seconds[i, j] = seconds[j, i] = record["seconds"]
     distance = np.sqrt(np.maximum(energy, 0.0))
-    return DistanceMatrix(list(names), distance, energy, rotations, seconds, failures, params, dict(skipped))
+    return DistanceMatrix(list(names), distance, energy, rotations, seconds, failures, params, dict(skipped), residual)

@@ -182,15 +182,24 @@ class GridSurface:
         return self.points.shape[0], self.points.shape[1]
 
     def area(self) -> float:
-        """Area as the sum of two triangles per cell (the paper's rule).
+        """Area as the sum of two triangles per cell (the paper's rule), averaged over the two diagonals.
 
-        Triangles (c_ij, c_i+1,j+1, c_i,j+1) and (c_ij, c_i+1,j, c_i+1,j+1).
+        Triangles (c_ij, c_i+1,j+1, c_i,j+1) and (c_ij, c_i+1,j, c_i+1,j+1), and (c_ij, c_i+1,j, c_i,j+1)
+        and (c_i+1,j, c_i+1,j+1, c_i,j+1). One diagonal alone (the paper) makes the area depend on which
+        corner of the grid is (0, 0): a warped 33 x 29 sample of a bump, flipped, had a 0.36% larger area, and
+        registered against a 31 x 31 sample of the same bump it stopped at E = 4e-6 instead of 5e-8. The
+        average is the same under every symmetry of the square; the paper's pairs give the same E as before.
         """
         c = self.points
         c00, c10, c01, c11 = c[:-1, :-1], c[1:, :-1], c[:-1, 1:], c[1:, 1:]
-        a1 = np.linalg.norm(np.cross(c11 - c00, c01 - c00), axis=-1)
-        a2 = np.linalg.norm(np.cross(c10 - c00, c11 - c00), axis=-1)
-        return 0.5 * float(np.sum(a1) + np.sum(a2))
+        diagonal, r_side, t_side = c11 - c00, c10 - c00, c01 - c00
+        doubled = (
+            _cross_norm(diagonal, t_side)  # (c00, c11, c01)
+            + _cross_norm(r_side, diagonal)  # (c00, c10, c11)
+            + _cross_norm(r_side, t_side)  # (c00, c10, c01)
+            + _cross_norm(c11 - c10, c01 - c10)  # (c10, c11, c01)
+        )
+        return 0.25 * float(doubled.sum())
 
     def scaled(self) -> GridSurface:
         """The surface divided by sqrt(area), so that its area is 1."""
@@ -217,6 +226,15 @@ class GridSurface:
     def save(self, path) -> None:
         """Write ``points``, ``r`` and ``t`` to an ``.npz`` file."""
         np.savez(path, points=self.points, r=self.r, t=self.t)
+
+
+def _cross_norm(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """|u x v| for arrays of vectors (..., 3) (twice the area of the triangle they span; written out, it takes
+    half the time of np.cross and np.linalg.norm)."""
+    x = u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1]
+    y = u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2]
+    z = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    return np.sqrt(x * x + y * y + z * z)
 
 
 def as_surface(surface) -> GridSurface:

@@ -17,11 +17,15 @@ v on the square, for the composition h o (id + tau v)).
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 import scipy.sparse as sp
 
 from .diffeo import identity
 from .grid import GridSurface
+from .residual import Residual, coordinate_residual, node_weights
+from .rotation import kabsch
 from .srnf import (
     cell_weights,
     cross_covariance,
@@ -68,6 +72,29 @@ class Objective:
     def energy(self, rotation: np.ndarray, h: np.ndarray) -> float:
         """E(h, R)."""
         return energy(self.q1, self.q2(h), self.weights, rotation)
+
+    @cached_property
+    def node_weights(self) -> np.ndarray:
+        """Area weights (M, N) of the first surface's nodes, summing to 1 (:func:`meshreg.residual.node_weights`)."""
+        return node_weights(self.first.points)
+
+    def residual(self, rotation: np.ndarray, h: np.ndarray) -> Residual:
+        """The coordinate residual of (R, h): RMS of R c1 - c2 o h and of R c1 + c2 o h (:mod:`meshreg.residual`)."""
+        return coordinate_residual(self.first.points @ rotation.T, self.points(h), self.node_weights)
+
+    def evaluate(self, rotation: np.ndarray, h: np.ndarray) -> tuple[float, Residual]:
+        """E(h, R) and the coordinate residual, from one evaluation of the second surface at h."""
+        points = self.points(h)
+        e = energy(self.q1, shape_function(points, self.r, self.t), self.weights, rotation)
+        return e, coordinate_residual(self.first.points @ rotation.T, points, self.node_weights)
+
+    def judge(self, h: np.ndarray) -> tuple[np.ndarray, float, Residual]:
+        """For h: the best R (Kabsch), E(h, R) and the residual, from one evaluation of the second surface at h."""
+        points = self.points(h)
+        q2 = shape_function(points, self.r, self.t)
+        rotation = kabsch(cross_covariance(self.q1, q2, self.weights))
+        residual = coordinate_residual(self.first.points @ rotation.T, points, self.node_weights)
+        return rotation, energy(self.q1, q2, self.weights, rotation), residual
 
     def best_rotation_covariance(self, h: np.ndarray) -> np.ndarray:
         """H = sum w q1 (q2, h)^T, whose Kabsch rotation minimizes E(h, .)."""

@@ -5,9 +5,9 @@
 they are made: an invalid value raises :class:`~meshreg.errors.InputError` naming the valid range. The same
 object travels from the command line (or the API, the adapters, the distance matrix) to the solvers.
 
-:data:`FLAGS` is the command line's view of these fields: one row per flag. :func:`add_flags` builds the
-argparse options from it and :func:`options_from_args` reads them back, so the flags cannot drift from the
-fields. Adding an option is one field here plus one row in :data:`FLAGS`.
+:data:`meshreg.flags.FLAGS` is the command line's view of these fields: one row per flag, from which the argparse
+options are built and read back, so the flags cannot drift from the fields. Adding an option is one field here plus
+one row in :data:`meshreg.flags.FLAGS` (and, for a registration option, a keyword of :func:`meshreg.register`).
 
 Examples
 --------
@@ -118,6 +118,13 @@ class Advanced:
         surface rather than the correspondence. Default 6: sheets of 2500 vertices are not refined (refining
         raised their error by 10 to 40%), a dense face scan (15000 and 47000 vertices) is refined to B-spline
         knots 0.048 apart (its error fell from 0.005 to 0.002); docs/bending.md.
+    ambiguity : float
+        Mode "auto": another correspondence counts as equally good (``result.alternatives``) when its distance
+        sqrt(E) and its coordinate residual (both lengths on area-1 surfaces) exceed the chosen one's by at most
+        this. Default 0.01 (1% of sqrt(area)): the refined symmetric twins of the answer on meshes of symmetric
+        sheets with two random triangulations came within 0.006 in distance and 0.0015 in residual (exact
+        twins on exactly sampled grids are equal), while the best twin of a terrain against its mirror image,
+        a different shape, was 0.24 further.
     """
 
     dp_rounds: int = 10
@@ -138,6 +145,7 @@ class Advanced:
     refine_rel_tol: float = 1e-2
     choice_window: float = 0.1
     refine_triangles: float = 6.0
+    ambiguity: float = 0.01
 
     def __post_init__(self):
         for name in (
@@ -159,6 +167,7 @@ class Advanced:
             "refine_rel_tol",
             "damping",
             "start_margin",
+            "ambiguity",
         ):
             _number(name, getattr(self, name), 0.0, math.inf)
         _number("step_fraction", self.step_fraction, 0.0, 1.0, low_open=True)
@@ -194,12 +203,17 @@ class Options:
         Mode "auto" with ``search``: also try the 8 symmetries of the square on the second surface. Default True.
     keep_orientation : bool
         Mode "auto" with ``symmetries``: try only the 4 symmetries that keep orientation (the rotations of the
-        square), so that the front side of each surface stays its front side. For meshes whose faces are wound
-        consistently (a cohort from one pipeline): nearly mirror-symmetric sheets otherwise admit a mirrored,
-        upside-down match whose E is within a few percent of the right one. Default False (a mesh wound the
-        other way, or a grid with r and t swapped, is matched too).
+        square), so that the front side of each surface stays its front side: for meshes whose faces are wound
+        consistently (a cohort from one pipeline), half the start search is then saved, and a member is never
+        matched back to front. Default False (a mesh wound the other way, or a grid with r and t swapped, is
+        matched too; matches on the mirror image are rejected by the residual either way).
     max_starts : int
         Mode "auto": most ranked starts registered in full (see ``Advanced.start_margin``). Default 3.
+    symmetry : int or None
+        Pin the symmetry of the square applied to the second surface first: an index of
+        :data:`meshreg.search.SQUARE_SYMMETRIES` (0-7, as in ``result.symmetry`` and ``result.alternatives``).
+        Mode "auto" then searches rotations for it alone; other modes register the second surface under it.
+        Default None: mode "auto" searches all 8, the other modes use the identity (0).
     start_basis : int
         Mode "gd": a second descent path starts in the coarser basis KL = ``start_basis``; ``>= basis`` turns
         it off. Default 3.
@@ -210,6 +224,11 @@ class Options:
         Meshes are resampled on ``resolution`` x ``resolution`` grids. Default 101.
     weights : {"mean-value", "cotangent"}
         Laplacian weights of the map of a mesh to the square. Default "mean-value" (bijective).
+    antialias : int
+        Meshes: each grid node is the hat-weighted mean of the mesh around it, sampled ``antialias`` times
+        finer than the grid (1: the mesh's point at the node). Default 3: point samples alias a scan's noise into
+        E (a face-scan crop against a remeshed copy: E 0.026 at 101 x 101, 0.014 anti-aliased, where no further
+        refinement went below 0.025).
     cleanup : bool
         Repair meshes (holes, pieces, pinched vertices, ears) instead of refusing them. Default True.
     corners1, corners2 : tuple of 4 int or None
@@ -244,10 +263,12 @@ class Options:
     symmetries: bool = True
     keep_orientation: bool = False
     max_starts: int = 3
+    symmetry: int | None = None
     start_basis: int = 3
     smoothing: tuple[float, ...] = (0.1,)
     resolution: int = 101
     weights: str = "mean-value"
+    antialias: int = 3
     cleanup: bool = True
     corners1: tuple[int, int, int, int] | None = None
     corners2: tuple[int, int, int, int] | None = None
@@ -267,6 +288,10 @@ class Options:
         _integer("basis", self.basis, 1, MAX_BASIS)
         _integer("start_basis", self.start_basis, 1, MAX_BASIS)
         _integer("max_starts", self.max_starts, 1, 8)
+        if self.symmetry is not None:
+            _integer("symmetry", self.symmetry, 0, 7)
+            object.__setattr__(self, "symmetry", int(self.symmetry))
+        _integer("antialias", self.antialias, 1, 16)
         _integer("resolution", self.resolution, 3, 100_000)
         _integer("corner_search", self.corner_search, 0, 1000)
         _number("bend_window", self.bend_window, 0.0, 1.0)
@@ -340,172 +365,3 @@ def _number(name: str, value, low: float, high: float, low_open: bool = False) -
     if not ok or value < low or (low_open and value == low) or value > high:
         bound = f"({low}" if low_open else f"[{low}"
         raise InputError(f"{name} must be a finite number in {bound}, {high}], got {value!r}")
-
-
-@dataclass(frozen=True)
-class Flag:
-    """One command-line flag: the option field it sets (``advanced.x`` for an :class:`Advanced` field)."""
-
-    flag: str
-    field: str
-    help: str
-    type: type | None = None
-    nargs: int | str | None = None
-    metavar: str | tuple | None = None
-    choices: tuple | None = None
-    group: str = "registration"
-    const: object = None  # a flag without a value sets this (e.g. --no-cleanup sets cleanup False)
-
-
-FLAGS: tuple[Flag, ...] = (
-    Flag("--mode", "mode", "how to register (default auto)", str, choices=MODES),
-    Flag("--window", "window", "DP window W (default 10)", int, metavar="W"),
-    Flag("--basis", "basis", "KL of the Riseth basis, 2 (KL + 2 KL^2) fields (default 5)", int, metavar="KL"),
-    Flag("--solver", "solver", "direction of the basis descent (default gauss-newton)", str, choices=SOLVERS),
-    Flag("--refine", "refine", "refinement after the basis descent (default nodes)", str, choices=REFINEMENTS),
-    Flag(
-        "--max-starts",
-        "max_starts",
-        "mode auto: most ranked starts registered in full (default 3; 1 = the best-ranked only)",
-        int,
-        metavar="K",
-    ),
-    Flag(
-        "--keep-orientation",
-        "keep_orientation",
-        "mode auto: only the 4 symmetries of the square that keep each surface's front side (meshes wound "
-        "consistently)",
-        const=True,
-    ),
-    Flag(
-        "--max-rounds", "advanced.max_rounds", "most descent + Kabsch rounds per stage (default 10)", int, metavar="N"
-    ),
-    Flag(
-        "--smoothing",
-        "smoothing",
-        "mode gd: Gaussian scale-space levels of its third path, in side lengths, "
-        "largest first (default 0.1; give none to turn it off)",
-        float,
-        nargs="*",
-        metavar="SIGMA",
-    ),
-    Flag(
-        "--start-basis",
-        "start_basis",
-        "mode gd: KL of the coarse basis its second path starts in (default 3)",
-        int,
-        metavar="KL",
-    ),
-    Flag(
-        "--resolution",
-        "resolution",
-        "meshes are resampled on N x N grids (default 101)",
-        int,
-        metavar="N",
-        group="meshes",
-    ),
-    Flag(
-        "--weights",
-        "weights",
-        "Laplacian weights of the map to the square (default mean-value)",
-        str,
-        choices=WEIGHTS,
-        group="meshes",
-    ),
-    Flag(
-        "--no-cleanup",
-        "cleanup",
-        "refuse to repair meshes (holes, pieces, ears, pinched vertices)",
-        group="meshes",
-        const=False,
-    ),
-    Flag(
-        "--force",
-        "force",
-        "run even when the grid size, --window, --resolution, --corner-search or --jobs exceed the limits on "
-        "memory and time (the refusal states the estimate); matrix: recompute a finished matrix",
-        const=True,
-    ),
-    Flag(
-        "--corners1",
-        "corners1",
-        "corner vertex ids of the first mesh's boundary, in order around it (the first becomes (0, 0))",
-        int,
-        nargs=4,
-        metavar="ID",
-        group="corners",
-    ),
-    Flag(
-        "--corners2",
-        "corners2",
-        "corner vertex ids of the second mesh's boundary, in order around it (matched with --corners1)",
-        int,
-        nargs=4,
-        metavar="ID",
-        group="corners",
-    ),
-    Flag(
-        "--bend-window",
-        "bend_window",
-        "two meshes, mode auto: width (side lengths of the square) of the windows in which E_w lets the surface "
-        "bend at no cost; 0 = minimize E itself (default 0.05)",
-        float,
-        metavar="W",
-        group="bending",
-    ),
-    Flag(
-        "--corner-search",
-        "corner_search",
-        "trial corner placements on round boundaries, 0 = off (default 8)",
-        int,
-        metavar="K",
-        group="meshes",
-    ),
-)
-
-
-def _dest(row: Flag) -> str:
-    return "opt_" + row.field.replace(".", "__")
-
-
-def add_flags(parser, groups=("registration", "meshes", "corners", "bending")) -> None:
-    """Add the flags of :data:`FLAGS` in ``groups`` to an argparse parser (defaults left to :class:`Options`)."""
-    sections = {}
-    for row in FLAGS:
-        if row.group not in groups:
-            continue
-        if row.group not in sections:
-            sections[row.group] = parser if row.group == "registration" else parser.add_argument_group(row.group)
-        kwargs = {"dest": _dest(row), "default": None, "help": row.help}
-        if row.const is not None:
-            kwargs.update(action="store_const", const=row.const)
-        else:
-            kwargs.update(
-                {
-                    k: v
-                    for k, v in (
-                        ("type", row.type),
-                        ("nargs", row.nargs),
-                        ("metavar", row.metavar),
-                        ("choices", row.choices),
-                    )
-                    if v is not None
-                }
-            )
-        sections[row.group].add_argument(row.flag, **kwargs)
-
-
-def options_from_args(args, **fixed) -> Options:
-    """The :class:`Options` of parsed arguments: each flag given sets its field; ``fixed`` sets others."""
-    top, advanced = dict(fixed), {}
-    for row in FLAGS:
-        value = getattr(args, _dest(row), None)
-        if value is None:
-            continue
-        if isinstance(value, list):
-            value = tuple(value)
-        if row.field.startswith("advanced."):
-            advanced[row.field.split(".", 1)[1]] = value
-        else:
-            top[row.field] = value
-    return Options(**top, advanced=Advanced(**advanced))

@@ -126,8 +126,9 @@ def write_grid_registration(
             second.scaled().at(result.h),
             result.energy_history,
             stage / FIGURE_FILE,
-            title=f"{options.mode}: E = {result.energy:.3g}",
+            title=f"{options.mode}: E = {result.energy:.3g}, residual = {result.residual:.3g}",
             stages=result.energy_stages,
+            notes=result.correspondence_notes(),
         )
         if reverse is not None:
             reverse.save(stage / REVERSE_FILE)
@@ -179,9 +180,10 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
             g2.scaled().at(result.h),
             result.energy_history,
             stage / FIGURE_FILE,
-            title=title,
+            title=f"{title}, residual = {result.residual:.3g}",
             stages=result.energy_stages,
             **({"minimized": "E_w (E with local rotations)"} if "bend_energy" in result.params else {}),
+            notes=result.correspondence_notes(),
         )
         if html:
             from .view import write_view

@@ -17,7 +17,11 @@ Modes (a table, :data:`SOLVE`, of functions each returning a :class:`~meshreg.sc
     Starts (a symmetry of the square for the second surface and a rotation) ranked by a coarse DP
     (:func:`meshreg.search.best_start`); from each start close to the best (``max_starts``,
     ``advanced.start_margin``), DP along r and along t (the transposed problem), alternated and composed,
-    then the basis descent; the start with the lowest E is refined.
+    then the basis descent; the start with the lowest E is refined. E is blind to the sign of a surface, so
+    every candidate is also judged by its coordinate residual (:mod:`meshreg.residual`): a match of the first
+    surface with the mirror image of the second is never returned. The correspondences as good as the chosen
+    one that a symmetry of either surface allows are listed in ``result.alternatives``
+    (:mod:`meshreg.alternatives`).
 
 The descent and refinement schedule is in :mod:`meshreg.schedule`; ``refine="none", solver="gradient",
 smoothing=(), start_basis=5`` is the paper's procedure as published. See docs/method.md.
@@ -35,6 +39,8 @@ from functools import partial
 
 import numpy as np
 
+from .alternatives import find_alternatives
+from .choice import choose, choose_unmirrored, close_starts, mirror_record, ranked_starts, spare_starts
 from .correspondence import Side
 from .errors import InputError
 from .grid import GridSurface
@@ -43,13 +49,10 @@ from .options import Advanced, Options
 from .result import Registration
 from .rotation import similarity
 from .schedule import Candidate, Descent, Log, Progress, dp_stage, gd_paths, valid_start, work_objective
-from .search import Start, apply_symmetry, best_start, symmetry_map
+from .search import Start, apply_symmetry, symmetry_map
 from .surfaces import Mesh, as_input
 
 DEFAULTS = Options()
-# a start ranked lower must beat a better-ranked one by this fraction of E to win; the identity symmetry goes
-# first when its coarse energy is within this fraction of the best
-SYMMETRY_MARGIN = 0.05
 
 
 def register(
@@ -65,10 +68,12 @@ def register(
     symmetries: bool = DEFAULTS.symmetries,
     keep_orientation: bool = DEFAULTS.keep_orientation,
     max_starts: int = DEFAULTS.max_starts,
+    symmetry: int | None = DEFAULTS.symmetry,
     start_basis: int = DEFAULTS.start_basis,
     smoothing: tuple[float, ...] = DEFAULTS.smoothing,
     resolution: int = DEFAULTS.resolution,
     weights: str = DEFAULTS.weights,
+    antialias: int = DEFAULTS.antialias,
     cleanup: bool = DEFAULTS.cleanup,
     corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
@@ -88,7 +93,10 @@ def register(
         differ. Both are scaled to area 1.
     mode, window, basis, solver, refine, search, symmetries, keep_orientation, max_starts, start_basis, smoothing
         How to register: see :class:`meshreg.options.Options` (defaults: mode "auto", window 10, basis 5, ...).
-    resolution, weights, cleanup, corners1, corners2, corner_search
+    symmetry : int, optional
+        Pins the symmetry of the square applied to the second surface (an index of
+        :data:`meshreg.search.SQUARE_SYMMETRIES`, as in ``result.symmetry`` and ``result.alternatives``).
+    resolution, weights, antialias, cleanup, corners1, corners2, corner_search
         How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
     bend_window
         Meshes in mode "auto": windows within which E_w lets the surface bend (default 0.05; 0: minimize E
@@ -98,14 +106,14 @@ def register(
     advanced : Advanced, optional
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
-        ``callback(stage, iteration, E)`` after every accepted step (stage "dp", "gd", "refine", "kabsch"
-        or "smoothing").
+        ``callback(stage, iteration, E)`` after every accepted step (stage "dp", "gd", "refine", "kabsch",
+        "smoothing" or "alternatives").
 
     Returns
     -------
     Registration
-        R, h, E and the correspondence (``correspondence``, ``vertex_pairs``, ``transform``, ``distances``,
-        ``fitness``, ``inlier_rmse``).
+        R, h, E, the coordinate residual and the equally good alternatives, and the correspondence
+        (``correspondence``, ``vertex_pairs``, ``transform``, ``distances``, ``fitness``, ``inlier_rmse``).
 
     Raises
     ------
@@ -131,10 +139,12 @@ def register(
         symmetries=symmetries,
         keep_orientation=keep_orientation,
         max_starts=max_starts,
+        symmetry=symmetry,
         start_basis=start_basis,
         smoothing=smoothing,
         resolution=resolution,
         weights=weights,
+        antialias=antialias,
         cleanup=cleanup,
         corners1=corners1,
         corners2=corners2,
@@ -167,37 +177,29 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
     start = time.perf_counter()
     options.check_grids(first.shape, second.shape)
     timings = {}
-    starts = [Start(0, None, float("nan"))]
-    if options.mode == "auto" and options.search:
-        tic = time.perf_counter()
-        ranked = best_start(first, second, symmetries=options.symmetries, keep_orientation=options.keep_orientation)
-        starts = _close_starts(ranked, options.max_starts, options.advanced.start_margin)
-        timings["search"] = time.perf_counter() - tic
-    solve = SOLVE[options.mode]
     area = second.area()
-    candidates = [
-        solve(first, apply_symmetry(second, s.symmetry), area, s.rotation, options, Log(callback, timings))
-        for s in starts
-    ]
-    chosen = _choose(candidates, options)
-    best = candidates[chosen].polish()
+    searched = options.mode == "auto" and options.search
+    ranked, mirror = ranked_starts(first, second, options, timings)
+    starts = close_starts(ranked, options.max_starts, options.advanced.start_margin) if searched else ranked
+    solve = SOLVE[options.mode]
+
+    def run(s: Start) -> Candidate:
+        return solve(first, apply_symmetry(second, s.symmetry), area, s.rotation, options, Log(callback, timings))
+
+    candidates = [run(s) for s in starts]
+    if searched:
+        chosen, residual = choose_unmirrored(candidates, starts, spare_starts(ranked, starts), run, options)
+    else:
+        chosen = choose(candidates, options)
+        candidates[chosen].polish()
+        residual = candidates[chosen].residual()
+    best, symmetry = candidates[chosen], starts[chosen].symmetry
+    alternatives = []
+    if options.mode == "auto":
+        with Log(callback, timings).clock("alternatives"):
+            alternatives = find_alternatives(first, second, area, symmetry, best, residual, options, Log(callback))
     timings["total"] = time.perf_counter() - start
-    params = {
-        **options.as_dict(),
-        "gd_path": best.gd_path,
-        "starts": [
-            {
-                "symmetry": s.symmetry,
-                "coarse_energy": None if np.isnan(s.energy) else float(s.energy),
-                "energy": float(c.energy),
-                "refined": c is best,
-            }
-            for s, c in zip(starts, candidates, strict=True)
-        ],
-        "grid_first": list(best.objective.first.shape),
-        "grid_second": list(best.objective.second.shape),
-    }
-    symmetry = starts[chosen].symmetry
+    params = _params(options, best, starts, candidates, mirror_record(mirror, starts[chosen]))
     h = symmetry_map(symmetry, best.h)
     return Registration(
         rotation=best.rotation,
@@ -213,28 +215,31 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
         timings=timings,
         symmetry=symmetry,
         transform=similarity(best.rotation, first.points, second.at(h)),
+        residual=residual.plus,
+        residual_mirrored=residual.minus,
+        alternatives=[a.as_dict(best.rotation) for a in alternatives],
     )
 
 
-def _choose(candidates: list[Candidate], options: Options) -> int:
-    """The lowest E after the basis descent wins, near ties (within SYMMETRY_MARGIN) going to the better-ranked
-    start; only the winner is refined (on the paper's pairs and nearly symmetric meshes the order of the starts
-    by this E was the order by their refined E, but for near ties)."""
-    lowest = min(c.energy for c in candidates)
-    bar = (1.0 + SYMMETRY_MARGIN) * lowest + options.advanced.abs_tol
-    return next(k for k, c in enumerate(candidates) if c.energy <= bar)
-
-
-def _close_starts(starts: list[Start], max_starts: int, margin: float) -> list[Start]:
-    """The ranked starts worth a full registration: the best, then those whose coarse energy is within
-    ``margin`` of it (at most ``max_starts``). The identity symmetry goes first when it is within
-    SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given parametrization)."""
-    best = starts[0]
-    identity = next(s for s in starts if s.symmetry == 0)
-    if identity.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
-        starts = [identity] + [s for s in starts if s is not identity]
-    close = [s for s in starts if s.energy <= (1.0 + margin) * best.energy or s is starts[0]]
-    return close[:max_starts]
+def _params(options: Options, best: Candidate, starts: list[Start], candidates: list[Candidate], mirror) -> dict:
+    """Every parameter of a registration and what its search saw (``result.params``)."""
+    return {
+        **options.as_dict(),
+        "gd_path": best.gd_path,
+        "starts": [
+            {
+                "symmetry": s.symmetry,
+                "coarse_energy": None if np.isnan(s.energy) else float(s.energy),
+                "energy": float(c.energy),
+                "residual": c.residual().plus,
+                "refined": c is best,
+            }
+            for s, c in zip(starts, candidates, strict=True)
+        ],
+        "mirror": mirror,
+        "grid_first": list(best.objective.first.shape),
+        "grid_second": list(best.objective.second.shape),
+    }
 
 
 def _dp_only(first: GridSurface, second: GridSurface, area: float, rotation, options: Options, log: Log) -> Candidate:
@@ -243,7 +248,8 @@ def _dp_only(first: GridSurface, second: GridSurface, area: float, rotation, opt
     with log.clock("dp"):
         rotation, h, energy_dp = dp_stage(objective, options, both=False, rotation=rotation)
         log.step("dp", 0, energy_dp)
-    return Candidate(objective, rotation, h, objective.energy(rotation, h), log, energy_dp=energy_dp)
+    energy, residual = objective.evaluate(rotation, h)
+    return Candidate(objective, rotation, h, energy, log, energy_dp=energy_dp, measured=residual)
 
 
 def _dp_then_descent(

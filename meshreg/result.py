@@ -14,6 +14,7 @@ import numpy as np
 from .correspondence import Side, h_at, inverse_uv
 from .errors import InputError
 from .files import write_atomic
+from .residual import is_mirrored
 
 INLIER_DISTANCE = 0.01  # default inlier threshold of fitness and inlier_rmse, as a fraction of sqrt(area of second)
 _SIDE_KEYS = ("vertices", "faces", "uv", "input_index", "source_ids")
@@ -43,10 +44,12 @@ class Registration:
         The first surface's partitions.
     mode : str
     params : dict
-        Every parameter that produced the result.
+        Every parameter that produced the result; in mode "auto" also ``starts`` (each registered start's
+        symmetry, coarse E, E and residual) and ``mirror`` (the best start the search dropped as mirrored: its
+        symmetry, coarse E and ``fits_better``, whether it beat the chosen start's coarse E by half).
     timings : dict
         Seconds per stage (``search``, ``dp``, ``gd``, ``smoothing`` (mode "gd": the smoothed levels),
-        ``refine``, ``total``).
+        ``refine``, ``alternatives`` (mode "auto"), ``total``).
     energy_stages : tuple of str, length K
         The stage of each entry of ``energy_history`` ("start", "dp", "gd", "kabsch", "refine", "full grid": E on
         the full grid on arrival from the work grid).
@@ -63,6 +66,18 @@ class Registration:
         given (:class:`meshreg.correspondence.Side`); they make :meth:`correspondence` and the methods after it.
     info : dict
         What the mesh preparation did, per surface ("first", "second"): cleanup report, flipped triangles, ...
+
+    residual : float
+        The coordinate residual: area-weighted RMS of ``R c1 - c2 o h`` after centring both, both surfaces at
+        area 1 (so 0.01 is 1% of sqrt(area)); E alone cannot tell a match from its mirror image
+        (:mod:`meshreg.residual`). NaN for results saved before it was recorded.
+    residual_mirrored : float
+        The same against the point reflection, RMS of ``R c1 + c2 o h``: far below ``residual`` when the
+        aligned first surface lies on the mirror image of the second (:attr:`mirrored`).
+    alternatives : list of dict
+        Mode "auto": the other correspondences as good as this one (a symmetric shape), each with
+        ``symmetry`` (pin it with ``Options.symmetry``), ``angle`` (degrees of its rotation from R),
+        ``energy``, ``residual`` and ``rotation``; empty when the correspondence is unambiguous.
 
     Examples
     --------
@@ -92,11 +107,50 @@ class Registration:
     first: Side | None = None
     second: Side | None = None
     info: dict = field(default_factory=dict)
+    residual: float = float("nan")
+    residual_mirrored: float = float("nan")
+    alternatives: list = field(default_factory=list)
 
     @property
     def distance(self) -> float:
         """The elastic shape distance sqrt(E)."""
         return float(np.sqrt(max(self.energy, 0.0)))
+
+    @property
+    def mirrored(self) -> bool:
+        """Whether the aligned first surface sits on the mirror image (point reflection) of the second
+        (:attr:`meshreg.residual.Residual.mirrored`)."""
+        return is_mirrored(self.residual, self.residual_mirrored)
+
+    @property
+    def ambiguous(self) -> bool:
+        """Whether other correspondences are as good as this one (:attr:`alternatives`)."""
+        return bool(self.alternatives)
+
+    def correspondence_notes(self) -> list[str]:
+        """What a user must know about the correspondence beyond E, one line each (none for most results): it
+        is mirrored (possible only in the modes that do not search), a mirror image of the second surface fits
+        clearly better than any correspondence that keeps orientation, or it is ambiguous."""
+        notes = []
+        if self.mirrored:
+            notes.append(
+                f"mirrored: R c1 lies on the mirror image of the second surface (residual {self.residual:.3g}, "
+                f"{self.residual_mirrored:.3g} against the mirror image); mode auto never returns such a match"
+            )
+        mirror = self.params.get("mirror") or {}
+        if mirror.get("fits_better"):
+            notes.append(
+                f"a mirror image of the second surface fits better (coarse E {mirror['coarse_energy']:.3g}, symmetry "
+                f"{mirror['symmetry']}): are the surfaces mirror images of each other? This correspondence keeps "
+                "orientation"
+            )
+        if self.alternatives:
+            others = ", ".join(f"{a['symmetry']} ({a['angle']:.0f} deg)" for a in self.alternatives)
+            notes.append(
+                f"ambiguous: {len(self.alternatives) + 1} equally good correspondences (the shape is symmetric); "
+                f"this one has symmetry {self.symmetry}, the others {others}: pin one with symmetry=K (--symmetry K)"
+            )
+        return notes
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Rotate points (..., 3) of the first surface by R."""
@@ -222,6 +276,9 @@ class Registration:
             transform=self.transform,
             info=json.dumps(self.info),
             **self._side_arrays(),
+            residual=self.residual,
+            residual_mirrored=self.residual_mirrored,
+            alternatives=json.dumps(self.alternatives),
         )
 
     def _side_arrays(self) -> dict:
@@ -253,6 +310,9 @@ class Registration:
                     first=_side(data, "first"),
                     second=_side(data, "second"),
                     info=json.loads(str(data["info"])) if "info" in data else {},
+                    residual=float(data["residual"]) if "residual" in data else float("nan"),
+                    residual_mirrored=float(data["residual_mirrored"]) if "residual_mirrored" in data else float("nan"),
+                    alternatives=json.loads(str(data["alternatives"])) if "alternatives" in data else [],
                 )
         except OSError as err:
             raise InputError(f"{path}: cannot read it ({err.strerror or err})") from None

@@ -92,6 +92,46 @@ def terrain(seed: int = 0, modes: int = 6) -> Param:
     )
 
 
+# height z(u, v) over the square centred at the origin (u = r - 1/2, v = t - 1/2) of each symmetric_sheet kind
+_SHEET_HEIGHTS = {
+    "none": lambda u, v: (
+        (
+            0.6 * np.exp(-((u + 0.2) ** 2 + (v - 0.1) ** 2) / 0.05)
+            - 0.3 * np.exp(-((u - 0.2) ** 2 + (v + 0.2) ** 2) / 0.02)
+        )
+        + 0.2 * u
+    ),
+    "point": lambda u, v: 0.8 * u**3 + 0.5 * u * v**2 + 0.3 * v + 0.4 * np.sin(2 * np.pi * u) * np.exp(-(v**2) / 0.1),
+    "axis": lambda u, v: 0.6 * np.exp(-(u**2 + (v - 0.15) ** 2) / 0.05) + 0.2 * v,
+    "diagonal": lambda u, v: (
+        0.6 * np.exp(-((u - 0.15) ** 2 + (v - 0.15) ** 2) / 0.05)
+        - 0.3 * np.exp(-((u + 0.2) ** 2 + (v + 0.2) ** 2) / 0.02)
+    ),
+    "two-fold": lambda u, v: (
+        0.5 * np.exp(-((u - 0.2) ** 2 + (v - 0.1) ** 2) / 0.03)
+        + 0.5 * np.exp(-((u + 0.2) ** 2 + (v + 0.1) ** 2) / 0.03)
+    ),
+    "four-fold": lambda u, v: 0.6 * np.exp(-(u**2 + v**2) / 0.05),
+}
+SHEET_KINDS = tuple(_SHEET_HEIGHTS)
+
+
+def symmetric_sheet(kind: str) -> Param:
+    """A graph (u, v, z(u, v)) over the square centred at the origin with one kind of symmetry.
+
+    ``"none"``: two different bumps and a tilt. ``"point"``: z odd, so c o rho = -c for the half turn rho of the
+    square (a point reflection). ``"axis"``: a bump on the v axis, mirror symmetric across it. ``"diagonal"``:
+    mirror symmetric across the diagonal u = v. ``"two-fold"``: two equal bumps, c o rho = S c with S the half
+    turn about z. ``"four-fold"``: a centred bump, invariant under the quarter turns (and the mirrors) of the square.
+
+    A mirror symmetry (point, axis, diagonal) gives a second match of zero E on the mirror image, never a second
+    correspondence; a rotation symmetry (two-fold: one more, four-fold: three more) gives equally good
+    correspondences (see :mod:`meshreg.alternatives`).
+    """
+    z = _SHEET_HEIGHTS[kind]
+    return lambda r, t: np.stack([r - 0.5, t - 0.5, z(r - 0.5, t - 0.5)], axis=-1)
+
+
 def warp(a: float = 0.08) -> Callable:
     """A non-separable smooth diffeomorphism of the square that keeps each side on itself (|a| < 0.2).
 

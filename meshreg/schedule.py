@@ -28,6 +28,7 @@ from .fields import bspline_basis, node_basis, riseth_basis
 from .grid import GridSurface
 from .objective import Objective
 from .options import Options, StepParams
+from .residual import Residual
 from .rotation import kabsch
 from .scale import level_nodes, smoothed
 from .spline import GridInterpolator
@@ -102,12 +103,20 @@ class Candidate:
     energy_dp: float = float("nan")
     gd_path: dict | None = None
     pending: Descent | None = field(default=None, repr=False)  # the refinement still to run
+    measured: Residual | None = field(default=None, repr=False)  # the residual of R and h, once computed
+
+    def residual(self) -> Residual:
+        """The coordinate residual of R and h on the grid h lives on (the work grid until :meth:`polish`)."""
+        if self.measured is None:
+            objective = self.objective if self.pending is None else self.pending.work
+            self.measured = objective.residual(self.rotation, self.h)
+        return self.measured
 
     def polish(self) -> Candidate:
         """Run the pending refinement (nothing when there is none); returns self."""
         if self.pending is not None:
             self.rotation, self.h = self.pending.polish(self.rotation, self.h, self.log)
-            self.energy = self.objective.energy(self.rotation, self.h)
+            self.energy, self.measured = self.objective.evaluate(self.rotation, self.h)
             self.pending = None
         if not self.log.energies:
             self.log.keep("start", self.energy)

@@ -9,6 +9,12 @@ The descent only finds the minimum of the basin it starts in. Two things put it 
 :func:`best_start` tries every symmetry with rotation candidates (Kabsch at the identity, the 24
 rotations of the cube's symmetry group, and the 4 proper alignments of the principal axes),
 ranks them by DP-surface-min on coarse grids, and returns the best.
+
+E cannot decide alone: it is blind to the sign of a surface (``q(-c) = q(c)``), so when the surface has a
+mirror symmetry, an orientation-reversing symmetry of the square reaches the same E as the right start with
+the aligned first surface on the point reflection of the second (see :mod:`meshreg.residual`). Each DP result
+is therefore also judged by its coordinate residual: a mirrored one is never a start, only a record that a
+mirror image fits (:attr:`Start.mirrored`).
 """
 
 from __future__ import annotations
@@ -43,6 +49,18 @@ def apply_symmetry(surface: GridSurface, k: int) -> GridSurface:
     if flip_t:
         p, t = p[:, ::-1], 1.0 - t[::-1]
     return GridSurface(np.ascontiguousarray(p), r, t)
+
+
+def compose_symmetries(a: int, b: int) -> int:
+    """The index of sigma_a o sigma_b (first sigma_b, then sigma_a)."""
+    probe = np.array([0.1, 0.3])
+    target = symmetry_map(a, symmetry_map(b, probe))
+    return next(k for k in range(len(SQUARE_SYMMETRIES)) if np.allclose(symmetry_map(k, probe), target))
+
+
+def inverse_symmetry(k: int) -> int:
+    """The index of sigma_k^-1."""
+    return next(j for j in range(len(SQUARE_SYMMETRIES)) if compose_symmetries(j, k) == 0)
 
 
 def symmetry_map(k: int, uv: np.ndarray) -> np.ndarray:
@@ -94,11 +112,16 @@ def principal_rotations(first: GridSurface, second: GridSurface) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Start:
-    """A ranked starting point: symmetry index, rotation and the coarse DP energy."""
+    """A ranked starting point: symmetry index, rotation and the coarse DP energy.
+
+    ``mirrored``: the DP's aligned first surface is closer to the point reflection of the second than to it
+    (:class:`meshreg.residual.Residual`); such a start is never registered.
+    """
 
     symmetry: int
     rotation: np.ndarray
     energy: float
+    mirrored: bool = False
 
 
 def best_start(
@@ -107,6 +130,7 @@ def best_start(
     *,
     symmetries: bool = True,
     keep_orientation: bool = False,
+    only: int | None = None,
     grid: int = DEFAULT_SEARCH_GRID,
     window: int = DEFAULT_SEARCH_WINDOW,
 ) -> list[Start]:
@@ -119,6 +143,8 @@ def best_start(
         Try the 8 symmetries of the square (else only the identity).
     keep_orientation : bool
         With ``symmetries``, try only the 4 that keep orientation (:data:`ORIENTATION_PRESERVING`).
+    only : int, optional
+        Try this symmetry alone (a user's pin; overrides ``symmetries`` and ``keep_orientation``).
     grid : int
         Both surfaces are resampled on grid x grid nodes for the ranking. Default 21.
     window : int
@@ -127,21 +153,31 @@ def best_start(
     Returns
     -------
     list of Start
-        One per symmetry (its best rotation), sorted by energy.
+        Per symmetry its best rotation whose DP match is not mirrored, and before it its best rotation
+        overall when that one is mirrored (flagged ``mirrored``); sorted by energy.
     """
     coarse1 = first.scaled().resampled(grid, grid)
     coarse2 = second.scaled().resampled(grid, grid)
     rotations = np.concatenate([cube_rotations(), principal_rotations(coarse1, coarse2)])
     starts = []
     tried = (ORIENTATION_PRESERVING if keep_orientation else range(len(SQUARE_SYMMETRIES))) if symmetries else (0,)
+    if only is not None:
+        tried = (only,)
     for k in tried:
         ob = Objective(coarse1, apply_symmetry(coarse2, k))
         q2 = ob.second_on_first_grid()
         candidates = [kabsch(ob.best_rotation_covariance(ob.identity)), *rotations]
-        best = None
-        for rotation in candidates:
-            result = dp_surface_min(ob.q1, q2, ob.r, ob.r, ob.t, window=window, rotation=rotation, max_rounds=3)
-            if best is None or result.energy < best.energy:
-                best = Start(k, result.rotation, result.energy)
-        starts.append(best)
+        results = [
+            dp_surface_min(ob.q1, q2, ob.r, ob.r, ob.t, window=window, rotation=rotation, max_rounds=3)
+            for rotation in candidates
+        ]
+        for result in sorted(results, key=lambda x: x.energy):
+            h = ob.identity.copy()
+            h[..., 0] = result.gamma[:, None]
+            mirrored = ob.residual(result.rotation, h).mirrored
+            if mirrored and any(s.symmetry == k for s in starts):
+                continue  # one mirrored record per symmetry: its best
+            starts.append(Start(k, result.rotation, result.energy, mirrored))
+            if not mirrored:
+                break
     return sorted(starts, key=lambda s: s.energy)

@@ -28,6 +28,7 @@ def plot_registration(
     title: str = "",
     stages=(),
     minimized: str = "E (squared elastic distance)",
+    notes=(),
 ) -> Path:
     """Write a PNG: R c1 and c2 o h overlaid (boundaries and iso-lines, each centred), where on the square they
     differ, and E (or what was minimized) per accepted step with the stages marked.
@@ -48,6 +49,9 @@ def plot_registration(
         marked on the energy curve.
     minimized : str
         What ``history`` holds, for the curve's axis (meshes in the bending path: E_w, :mod:`meshreg.bending`).
+    notes : sequence of str, optional
+        Lines written under the panels (:meth:`meshreg.Registration.correspondence_notes`: an ambiguous or
+        mirrored correspondence).
     """
     first = first_rotated - first_rotated.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay them
     second = second_registered - second_registered.reshape(-1, 3).mean(axis=0)
@@ -80,6 +84,10 @@ def plot_registration(
     curve.set_title(f"energy: {energies[0]:.3g} -> {energies[-1]:.3g}", fontsize=10)
     curve.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
+    for k, line in enumerate(notes):
+        fig.text(0.01, 0.01 + 0.035 * k, line, fontsize=9, color="tab:red", wrap=True)
+    if notes:
+        fig.subplots_adjust(bottom=0.12 + 0.035 * len(notes))
     path = Path(path)
     fig.savefig(path, dpi=110)
     return path

@@ -44,6 +44,11 @@ class ElasticRegistrationResult:
         E, the squared elastic shape distance (both surfaces at area 1).
     distance : float
         sqrt(E).
+    residual : float
+        The coordinate residual: RMS of R c1 - c2 o h on both grids, centred and at area 1
+        (:attr:`meshreg.Registration.residual`).
+    alternatives : list of dict
+        Other correspondences as good as this one (a symmetric shape; :attr:`meshreg.Registration.alternatives`).
     source_colored, target_colored : open3d.geometry.TriangleMesh
         Copies of the inputs with vertex_colors: corresponding points share a colour.
     registered : open3d.geometry.TriangleMesh
@@ -58,6 +63,8 @@ class ElasticRegistrationResult:
     inlier_rmse: float
     energy: float
     distance: float
+    residual: float
+    alternatives: list
     source_colored: object
     target_colored: object
     registered: object
@@ -109,6 +116,8 @@ def register(source, target, options: Options | None = None) -> ElasticRegistrat
         inlier_rmse=mr.result.inlier_rmse(),
         energy=mr.result.energy,
         distance=mr.result.distance,
+        residual=mr.result.residual,
+        alternatives=mr.result.alternatives,
         source_colored=_colored(source, c1),
         target_colored=_colored(target, c2),
         registered=registered,

@@ -58,6 +58,16 @@ def test_save_load_round_trip(serial, tmp_path):
     assert (
         back.names == serial.names and np.array_equal(back.distance, serial.distance) and back.params == serial.params
     )
+    assert np.array_equal(back.residual, serial.residual, equal_nan=True)
+    with np.load(tmp_path / "D.npz") as data:  # a matrix written before the residual was recorded
+        np.savez(tmp_path / "old.npz", **{k: data[k] for k in data.files if k != "residual"})
+    assert np.isnan(DistanceMatrix.load(tmp_path / "old.npz").residual).all()
+
+
+def test_pairs_record_the_coordinate_residual(serial):
+    r = serial.residual
+    assert np.array_equal(r, r.T) and np.all(np.diag(r) == 0)
+    assert r[0, 1] < 0.01 < 0.05 < r[0, 2]  # the same surface reparametrized; different shapes
 
 
 def test_checkpoint_of_another_run_is_refused_and_cut_lines_are_redone(tmp_path):

@@ -167,3 +167,105 @@ def test_demo_checks_its_own_answer(tmp_path):
     )
     assert angle < 1.0 and abs(scale - 2.5) < 0.025 and error < 1.0  # the motion applied and the true correspondence
     assert (tmp_path / "d" / "view.html").stat().st_size > 1_000_000
+
+
+def test_register_prints_residual_and_an_ambiguous_correspondence(tmp_path, capsys):
+    from meshreg.samples import sample, symmetric_sheet
+
+    c = symmetric_sheet("two-fold")
+    np.save(tmp_path / "a.npy", sample(c, 21, 21).points)
+    np.save(tmp_path / "b.npy", sample(lambda u, v: 2 * c(u, v)[..., [1, 2, 0]], 23, 19).points)
+    assert main(["register", str(tmp_path / "a.npy"), str(tmp_path / "b.npy"), "-o", str(tmp_path / "o"), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "residual" in out and "against the mirror image" in out
+    ambiguous = [line for line in out.splitlines() if "ambiguous" in line]
+    assert len(ambiguous) == 1 and "2 equally good correspondences" in ambiguous[0]
+    result = Registration.load(tmp_path / "o" / "result.npz")
+    assert len(result.alternatives) == 1 and result.residual < 0.01
+    assert (tmp_path / "o" / "registration.png").stat().st_size > 1000
+
+
+@pytest.fixture(scope="module")
+def mesh_files(tmp_path_factory):
+    """Two small meshes of one bump sheet (300 and 400 random vertices), the second rotated and scaled."""
+    from scipy.spatial.transform import Rotation
+
+    from meshreg.mesh.export import write_ply
+    from meshreg.mesh.samples import random_disk_mesh
+    from meshreg.samples import bump
+
+    d = tmp_path_factory.mktemp("meshes")
+    v1, f1, _ = random_disk_mesh(bump(), 300, seed=1)
+    v2, f2, _ = random_disk_mesh(bump(), 400, seed=2, rotation=Rotation.random(random_state=3).as_matrix(), scale=2.0)
+    write_ply(d / "a.ply", v1, f1, np.full((len(v1), 3), 0.8))
+    write_ply(d / "b.ply", v2, f2, np.full((len(v2), 3), 0.8))
+    return d, v1, f1
+
+
+def _boundary_corners(vertices, faces, k: int) -> list[int]:
+    from meshreg.mesh.topology import prepare_disk
+
+    disk = prepare_disk(vertices, faces)
+    loop = disk.boundary
+    return [int(disk.vertex_map[loop[i]]) for i in np.linspace(0, len(loop), 5).astype(int)[:4] + k]
+
+
+# per flag of meshreg.flags.FLAGS: the arguments given, and what result.npz must then record; each row runs the
+# command line on two small meshes (--resolution 13 and --corner-search 0 unless the row sets them)
+MESH_FLAG_CASES = {
+    "--mode": (["--mode", "dp+gd"], lambda r: r.mode == "dp+gd" and "search" not in r.timings),
+    "--window": (["--window", "4"], lambda r: r.params["window"] == 4),
+    "--basis": (["--basis", "3"], lambda r: r.params["basis"] == 3),
+    "--solver": (["--solver", "gradient"], lambda r: r.params["solver"] == "gradient"),
+    "--refine": (["--refine", "none"], lambda r: r.params["refine"] == "none" and "refine" not in r.timings),
+    "--max-starts": (["--max-starts", "1"], lambda r: len(r.params["starts"]) == 1),
+    "--keep-orientation": (
+        ["--keep-orientation"],
+        lambda r: (
+            r.params["keep_orientation"] is True and all(s["symmetry"] in (0, 3, 5, 6) for s in r.params["starts"])
+        ),
+    ),
+    "--force": (["--force"], lambda r: r.params["force"] is True),
+    "--symmetry": (
+        ["--symmetry", "0"],
+        lambda r: r.symmetry == 0 and {s["symmetry"] for s in r.params["starts"]} == {0},
+    ),
+    "--max-rounds": (["--max-rounds", "2"], lambda r: r.params["max_rounds"] == 2),
+    "--smoothing": (
+        ["--mode", "gd", "--smoothing", "0.2"],
+        lambda r: r.params["smoothing"] == [0.2] and "smoothing" in r.timings,
+    ),
+    "--start-basis": (["--mode", "gd", "--start-basis", "2"], lambda r: r.params["start_basis"] == 2),
+    "--resolution": (["--resolution", "11"], lambda r: r.h.shape == (11, 11, 2) and r.params["resolution"] == 11),
+    "--weights": (["--weights", "cotangent"], lambda r: r.params["weights"] == "cotangent"),
+    "--antialias": (["--antialias", "1"], lambda r: r.params["antialias"] == 1),
+    "--no-cleanup": (["--no-cleanup"], lambda r: r.params["cleanup"] is False),
+    "--corner-search": (["--corner-search", "2"], lambda r: r.params["corner_search"] == 2),
+    "--corners1": (["--corners1", "CORNERS1"], lambda r: len(r.params["corners1"]) == 4),
+    "--corners2": (["--corners2", "CORNERS2"], lambda r: len(r.params["corners2"]) == 4),
+}
+
+
+def test_every_flag_has_a_mesh_case():
+    from meshreg.flags import FLAGS
+
+    assert {row.flag for row in FLAGS} == set(MESH_FLAG_CASES)
+
+
+@pytest.mark.parametrize("flag", list(MESH_FLAG_CASES))
+def test_each_flag_reaches_the_mesh_result(mesh_files, tmp_path, flag):
+    d, v1, f1 = mesh_files
+    args, check = MESH_FLAG_CASES[flag]
+    corners = {"CORNERS1": _boundary_corners(v1, f1, 1), "CORNERS2": None}
+    if "CORNERS2" in args:
+        from meshreg.mesh.topology import load_mesh
+
+        corners["CORNERS2"] = _boundary_corners(*load_mesh(d / "b.ply"), 2)
+    args = [str(x) for a in args for x in (corners[a] if a in corners else [a])]
+    for name, default in (("--resolution", "13"), ("--corner-search", "0")):
+        if name not in args:
+            args += [name, default]
+    out = tmp_path / "out"
+    assert main(["register", str(d / "a.ply"), str(d / "b.ply"), "-o", str(out), "-q", *args]) == 0
+    result = Registration.load(out / "result.npz")
+    assert check(result), (flag, result.params)

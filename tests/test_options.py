@@ -8,7 +8,8 @@ import pytest
 
 import meshreg
 from meshreg.errors import InputError
-from meshreg.options import FLAGS, Advanced, Options, add_flags, options_from_args
+from meshreg.flags import FLAGS, add_flags, options_from_args
+from meshreg.options import Advanced, Options
 
 REGISTRATION_FIELDS = {f.name for f in dataclasses.fields(Options)} - {"advanced"}
 
@@ -75,6 +76,9 @@ def test_flags_parse_into_options_and_defaults_come_from_options():
         ({"basis": 1000}, "basis"),
         ({"start_basis": 0}, "start_basis"),
         ({"max_starts": 0}, "max_starts"),
+        ({"symmetry": 8}, "symmetry"),
+        ({"symmetry": 1.5}, "symmetry"),
+        ({"antialias": 0}, "antialias"),
         ({"smoothing": (0.0,)}, "smoothing"),
         ({"smoothing": (float("nan"),)}, "smoothing"),
         ({"resolution": -5}, "resolution"),
@@ -101,6 +105,7 @@ def test_bad_options_name_the_field_and_the_valid_range(changes, message):
         {"max_rounds": -1},
         {"choice_window": 0.0},
         {"refine_triangles": -1.0},
+        {"ambiguity": -0.5},
     ],
 )
 def test_bad_advanced_numerics_are_refused(changes):

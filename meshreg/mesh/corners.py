@@ -39,8 +39,10 @@ def placement_corners(disk: DiskMesh, trials: int) -> list[np.ndarray]:
 
 def placement_energy(coarse1, coarse2, keep_orientation: bool = False) -> float:
     """Rank of a corner placement: the best coarse DP energy over the square's symmetries (those that keep
-    orientation with ``keep_orientation``) and rotations."""
-    return best_start(coarse1, coarse2, keep_orientation=keep_orientation)[0].energy
+    orientation with ``keep_orientation``) and rotations, of a match that is not mirrored
+    (:func:`meshreg.search.best_start`)."""
+    starts = best_start(coarse1, coarse2, keep_orientation=keep_orientation)
+    return next((s.energy for s in starts if not s.mirrored), float("inf"))
 
 
 def best_placement(first: GridSurface, placements: list[GridSurface], keep_orientation: bool = False) -> int:
@@ -104,10 +106,11 @@ def search_corners(
     n, trials = CHOICE_GRID, options.corner_search
     window, symmetries = options.advanced.choice_window, tried_symmetries(options)
     disk1, disk2 = first.disk, second.disk
-    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n)
+    aa = options.antialias
+    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n, aa)
 
     def rank(start):
-        grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n)
+        grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n, aa)
         return symmetry_energies(coarse1, grid, window, symmetries)[0][1]
 
     tried = [(float(start), rank(start)) for start in placement_starts(disk2, trials)]
@@ -121,7 +124,7 @@ def search_corners(
 
 def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options):
     """One mesh, on its own, to grid surfaces: clean, map to the square, resample on grids of
-    ``options.resolution`` nodes per axis (``options.cleanup``, ``options.weights``).
+    ``options.resolution`` nodes per axis (``options.cleanup``, ``options.weights``, ``options.antialias``).
 
     With four clear corners (or ``options.corner_search=0``), one grid (corners by
     :func:`~meshreg.mesh.harmonic.choose_corners`); else one grid per trial corner placement of
@@ -138,5 +141,5 @@ def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options):
         placements = [choose_corners(disk)]
     maps = [hmap(corners) for corners in placements]
     n = options.resolution
-    grids = [resample_grid(disk.vertices, disk.faces, uv, n, n) for uv, _ in maps]
+    grids = [resample_grid(disk.vertices, disk.faces, uv, n, n, options.antialias) for uv, _ in maps]
     return grids, {**maps[0][1], "cleanup": disk.report}

@@ -61,7 +61,7 @@ def register_meshes(
         Two disk-topology meshes: files, ``trimesh.Trimesh``, Open3D ``TriangleMesh`` or (vertices (n, 3), faces
         (m, 3)); see :func:`meshreg.surfaces.as_input`.
     options : Options, optional
-        Mesh preparation (``resolution``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
+        Mesh preparation (``resolution``, ``antialias``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
         ``corner_search``) and registration settings. In mode "auto" (the default) with ``bend_window`` > 0
         (default 0.05) the correspondence starts from the two maps to the square and descends E_w, which lets
         the surface bend (:func:`meshreg.bending.register_bending`); the symmetry of the square (which corner
@@ -98,13 +98,14 @@ def register_meshes(
         uvs.append(uv)
         infos[name].update(info)
     n = options.resolution
-    grids = [resample_grid(d.vertices, d.faces, uv, n, n) for d, uv in zip(disks, uvs, strict=True)]
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
+    pinned = options.symmetry if symmetry is None else symmetry
     if options.mode == "auto" and options.bend_window > 0:
         edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])
         finest = options.advanced.refine_triangles * edges
-        result = register_bending(grids[0], grids[1], options, callback, symmetry, finest)
+        result = register_bending(grids[0], grids[1], options, callback, pinned, finest)
     else:
-        result = register_grids(grids[0], grids[1], options, callback)
+        result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
     sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=_json_ready(infos))
     return MeshRegistration(

@@ -177,3 +177,30 @@ def face_scan_pair(
     used = np.unique(f)
     v, f = v[used], np.searchsorted(used, f)
     return (v, f), remeshed_range_scan(v, f, n_points, seed, rotation=rotation, scale=scale), rotation
+
+
+def face_scan_errors(result, crop: tuple, xy: np.ndarray) -> np.ndarray:
+    """How far a registration of :func:`face_scan_pair` is from the truth, per vertex of the remeshed copy.
+
+    Parameters
+    ----------
+    result : meshreg.Registration
+        The crop (first) registered with the copy (second).
+    crop : (vertices (n, 3), faces (m, 3))
+        The crop as registered.
+    xy : ndarray, shape (k, 2)
+        Each copy vertex's (x, y) before the motion, as :func:`face_scan_pair` returns it.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        For each copy vertex, the distance between the point of the crop the registration matches it with and
+        its true partner (the crop's surface at its original (x, y), linear in the crop's triangles), in units of
+        sqrt(area) of the crop; NaN where that (x, y) lies outside the crop or cleanup dropped the vertex.
+    """
+    from .topology import triangle_areas
+
+    vertices, faces = crop
+    truth = LinearNDInterpolator(vertices[:, :2], vertices)(xy)
+    area = float(triangle_areas(vertices, faces).sum())
+    return np.linalg.norm(result.correspondence_on_first() - truth, axis=1) / np.sqrt(area)

@@ -123,10 +123,12 @@ def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, opti
     Returns
     -------
     dict
-        ``energy`` (E), ``distance`` (sqrt E), ``transformation`` (4 x 4 similarity taking the first into
-        the second's frame), ``registration`` (the meshreg Registration) and ``layers`` (ids of the new
-        layers "meshreg first (coloured)", "meshreg second (coloured)" and "meshreg registered second") and
-        ``cleanup`` (what meshreg's own cleanup still had to do to each mesh).
+        ``energy`` (E), ``distance`` (sqrt E), ``residual`` and ``residual_mirrored`` (the coordinate residual
+        against the second surface and against its mirror image, :attr:`meshreg.Registration.residual`),
+        ``alternatives`` (other correspondences as good: a symmetric shape), ``transformation`` (4 x 4
+        similarity taking the first into the second's frame), ``registration`` (the meshreg Registration) and
+        ``layers`` (ids of the new layers "meshreg first (coloured)", "meshreg second (coloured)" and "meshreg
+        registered second") and ``cleanup`` (what meshreg's own cleanup still had to do to each mesh).
 
     Raises
     ------
@@ -151,6 +153,9 @@ def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, opti
     return {
         "energy": mr.result.energy,
         "distance": mr.result.distance,
+        "residual": mr.result.residual,
+        "residual_mirrored": mr.result.residual_mirrored,
+        "alternatives": mr.result.alternatives,
         "transformation": mr.result.transform,
         "registration": mr.result,
         "layers": layers,

@@ -1,0 +1,159 @@
+"""Right correspondences, not only low energy: sheets with each kind of symmetry against moved, rescaled, re-gridded
+copies of themselves. E cannot tell a match from its mirror image (q(-c) = q(c)); the coordinate residual can."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import meshreg
+from meshreg.errors import InputError
+from meshreg.grid import GridSurface
+from meshreg.objective import Objective
+from meshreg.residual import coordinate_residual, node_weights
+from meshreg.rotation import angle_between
+from meshreg.samples import SHEET_KINDS, sample, symmetric_sheet, warp
+from meshreg.search import SQUARE_SYMMETRIES, apply_symmetry, compose_symmetries, inverse_symmetry, symmetry_map
+
+# the rotation angles (degrees) of the equally good correspondences besides the chosen one, per kind: a mirror
+# symmetry (point, axis, diagonal) only ever gives a mirrored twin, which is not a correspondence
+ALTERNATIVE_ANGLES = {
+    "none": [],
+    "point": [],
+    "axis": [],
+    "diagonal": [],
+    "two-fold": [180],
+    "four-fold": [90, 90, 180],
+}
+MIRROR_KINDS = ("point", "axis", "diagonal", "four-fold")
+
+
+def moved_copy(kind: str, seed: int, n: int = 41):
+    """The sheet on an n x n grid (non-uniform partitions for odd seeds) and a copy: randomly rotated, scaled,
+    shifted, sampled at a random warp on an (n + 2) x (n - 2) grid, under a random symmetry of the square."""
+    c = symmetric_sheet(kind)
+    rng = np.random.default_rng(seed)
+    rotation = Rotation.random(random_state=rng).as_matrix()
+    scale, shift = rng.uniform(0.3, 3.0), 5 * rng.normal(size=3)
+    if seed % 2:
+        r, t = np.linspace(0, 1, n) ** 1.2, 1 - (1 - np.linspace(0, 1, n)) ** 1.15
+        first = GridSurface.from_array(c(*np.meshgrid(r, t, indexing="ij")), r, t)
+    else:
+        first = sample(c, n, n)
+    second = sample(lambda u, v: scale * c(u, v) @ rotation.T + shift, n + 2, n - 2, warp(rng.uniform(-0.1, 0.1)))
+    return first, apply_symmetry(second, int(rng.integers(8))), rotation
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("kind", SHEET_KINDS)
+def test_every_symmetry_kind_gives_zero_energy_and_zero_residual(kind, seed):
+    first, second, rotation = moved_copy(kind, seed)
+    result = meshreg.register(first, second)
+    assert result.energy <= 1e-6
+    assert result.residual <= 0.01 and not result.mirrored
+    assert result.residual_mirrored > 0.5  # the point reflection is far: a sheet is not its own mirror image
+    # the reported residual is the one anyone recomputes from R and h
+    check = coordinate_residual(
+        result.apply(first.scaled().points), second.scaled().at(result.h), node_weights(first.points)
+    )
+    assert check.plus == pytest.approx(result.residual, rel=1e-6, abs=1e-9)
+    # the ambiguity report: the rotation symmetries' twins, nothing for the others
+    assert sorted(round(a["angle"]) for a in result.alternatives) == ALTERNATIVE_ANGLES[kind]
+    assert result.ambiguous == bool(ALTERNATIVE_ANGLES[kind])
+    for alt in result.alternatives:
+        assert alt["energy"] <= 1e-6 and alt["residual"] <= 0.01 and alt["symmetry"] != result.symmetry
+    # the true rotation is the chosen one or an alternative's
+    rotations = [result.rotation] + [np.array(a["rotation"]) for a in result.alternatives]
+    assert min(angle_between(r, rotation) for r in rotations) < 0.5
+    # a mirror symmetry's trap was there (a mirrored start as good as the chosen one) and was not taken
+    chosen_coarse = next(s["coarse_energy"] for s in result.params["starts"] if s["refined"])
+    mirror = result.params["mirror"]
+    if kind in MIRROR_KINDS:
+        assert mirror["coarse_energy"] == pytest.approx(chosen_coarse, rel=0.01) and not mirror["fits_better"]
+    else:
+        assert mirror is None or mirror["coarse_energy"] > 10 * chosen_coarse
+
+
+def test_mirror_trap_of_a_point_symmetric_sheet_reaches_zero_energy():
+    """Why E cannot decide: the half turn of a point-symmetric sheet matches its copy at E = 0 on the point
+    reflection; the residual tells the two apart."""
+    c = symmetric_sheet("point")
+    first = sample(c, 31, 31)
+    second = sample(lambda u, v: c(u, v) @ Rotation.random(random_state=2).as_matrix().T, 31, 31)
+    trap = Objective(first, apply_symmetry(second, 3))  # the half turn: h = rho
+    rotation = meshreg.rotation.kabsch(trap.best_rotation_covariance(trap.identity))
+    assert trap.energy(rotation, trap.identity) < 1e-20
+    assert trap.residual(rotation, trap.identity).mirrored
+    result = meshreg.register(first, second)
+    assert result.symmetry != 3 and result.residual < 1e-3
+
+
+def test_pinning_an_alternative_reaches_it():
+    first, second, _ = moved_copy("two-fold", 0)
+    result = meshreg.register(first, second)
+    (alt,) = result.alternatives
+    pinned = meshreg.register(first, second, symmetry=alt["symmetry"])
+    assert pinned.symmetry == alt["symmetry"] and pinned.params["symmetry"] == alt["symmetry"]
+    assert angle_between(pinned.rotation, np.array(alt["rotation"])) < 0.1
+    assert pinned.energy <= 1e-6 and pinned.residual <= 0.01
+    assert [a["symmetry"] for a in pinned.alternatives] == [result.symmetry]
+    with pytest.raises(InputError, match="pinned symmetry"):
+        # the orientation-reversing symmetries of an (orientation-preserving) copy only match its mirror image
+        meshreg.register(first, first, symmetry=1)
+
+
+def test_a_true_mirror_image_is_flagged_not_matched():
+    """A left and a right: the second surface is the mirror image of the first. The search sees the mirror image
+    fit at near-zero coarse E, says so, and returns the best correspondence that keeps orientation."""
+    c = symmetric_sheet("none")
+    rotation = Rotation.random(random_state=3).as_matrix()
+    first = sample(c, 41, 41)
+    second = sample(lambda u, v: (c(u, v) * [-1, 1, 1]) @ rotation.T, 41, 41, warp(0.05))
+    result = meshreg.register(first, second)
+    assert not result.mirrored and result.params["mirror"]["fits_better"]
+    assert result.energy > 1e-3  # as oriented surfaces they differ
+    assert any("mirror image of the second surface fits better" in n for n in result.correspondence_notes())
+
+
+@pytest.mark.parametrize("mode", ["dp", "dp+gd"])
+def test_modes_without_search_record_the_residual_only(mode):
+    first, second, _ = moved_copy("four-fold", 0, n=31)
+    result = meshreg.register(first, second, mode=mode)
+    assert np.isfinite(result.residual) and np.isfinite(result.residual_mirrored)
+    assert result.alternatives == [] and "alternatives" not in result.timings
+
+
+def test_mirrored_means_on_the_reflection_not_merely_closer_to_it():
+    from meshreg.residual import Residual
+
+    assert Residual(0.7, 1e-3).mirrored and Residual(0.4, 0.15).mirrored
+    # two very different shapes are about as far from the second as from its reflection: that says nothing
+    assert not Residual(0.86, 0.85).mirrored and not Residual(0.01, 0.7).mirrored
+
+
+def test_symmetries_compose_and_invert():
+    uv = np.random.default_rng(0).random((20, 2))
+    for a in range(len(SQUARE_SYMMETRIES)):
+        assert compose_symmetries(a, inverse_symmetry(a)) == 0
+        for b in range(len(SQUARE_SYMMETRIES)):
+            composed = symmetry_map(compose_symmetries(a, b), uv)
+            assert np.allclose(composed, symmetry_map(a, symmetry_map(b, uv)))
+
+
+def test_area_does_not_depend_on_the_corner_at_the_origin():
+    s = sample(symmetric_sheet("none"), 21, 17, warp(0.1))
+    assert np.allclose([apply_symmetry(s, k).area() for k in range(8)], s.area(), rtol=1e-13)
+
+
+def test_results_without_residual_still_load(tmp_path):
+    first, second, _ = moved_copy("two-fold", 0, n=21)
+    result = meshreg.register(first, second)
+    result.save(tmp_path / "new.npz")
+    loaded = meshreg.Registration.load(tmp_path / "new.npz")
+    assert loaded.residual == result.residual and loaded.alternatives == json.loads(json.dumps(result.alternatives))
+    with np.load(tmp_path / "new.npz") as data:
+        old = {k: data[k] for k in data.files if k not in ("residual", "residual_mirrored", "alternatives")}
+    np.savez(tmp_path / "old.npz", **old)
+    loaded = meshreg.Registration.load(tmp_path / "old.npz")
+    assert np.isnan(loaded.residual) and loaded.alternatives == [] and not loaded.mirrored
