@@ -132,7 +132,8 @@ def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, 
     note = f"E = {energy:.3g}"
     if "bend_energy" in mr.result.params:
         note += f", E_w = {mr.result.params['bend_energy']:.3g}"
-        ranked = [s["choice_energy"] for s in mr.result.params["starts"]]
+        ranking = mr.result.params["symmetry_ranking"]
+        ranked = [s["choice_energy"] for s in ranking if not s["mirrored"]]
         if len(ranked) > 1:  # how clearly E_w at the start picked the square's symmetry
             note += f", symmetry {mr.result.symmetry}: next E_w {ranked[1] / ranked[0]:.2f} x"
     found = Outcome(deform.matched_points(mr, n2), seconds, note, {"E": energy}, cpu)

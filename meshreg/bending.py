@@ -24,16 +24,19 @@ No DP stage: the DP minimizes E and walks away from the parametrization on bends
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
+from .alternatives import find_alternatives
 from .grid import GridSurface
 from .local_rotation import LocalObjective, local_energy
 from .objective import Objective
 from .options import Options
+from .residual import Residual
 from .result import Registration
-from .rotation import kabsch, similarity
+from .rotation import similarity
 from .schedule import Descent, Log, Progress, work_objective
 from .search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry, symmetry_map
 
@@ -47,12 +50,19 @@ def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
     return surface.scaled().resampled(n, n)
 
 
-def symmetry_energies(first: GridSurface, second: GridSurface, window: float, tried) -> list[tuple[int, float]]:
-    """(symmetry, E_w at h = that symmetry) for each symmetry of the square in ``tried``, lowest first; both
-    surfaces are ranked on :func:`coarse` grids with windows of ``window`` (side lengths)."""
+def symmetry_energies(first: GridSurface, second: GridSurface, window: float, tried) -> list[tuple[int, float, bool]]:
+    """(symmetry, E_w at h = that symmetry, whether that match is mirrored) for each symmetry of the square in
+    ``tried``, lowest E_w first. Both surfaces are ranked on :func:`coarse` grids with windows of ``window`` (side
+    lengths); a match is mirrored when the first, rotated by Kabsch, lies on the point reflection of the second
+    (:mod:`meshreg.residual`): E_w, like E, cannot tell them apart."""
     a, b = coarse(first), coarse(second)
-    energies = [(k, local_energy(a.points, apply_symmetry(b, k).points, a.r, a.t, window)) for k in tried]
-    return sorted(energies, key=lambda x: x[1])
+    out = []
+    for k in tried:
+        copy = apply_symmetry(b, k)
+        plain = Objective(a, copy, copy.area())
+        mirrored = plain.judge(plain.identity)[2].mirrored
+        out.append((k, local_energy(a.points, copy.points, a.r, a.t, window), mirrored))
+    return sorted(out, key=lambda x: x[1])
 
 
 def descent_window(first: GridSurface, bend_window: float) -> float:
@@ -106,46 +116,76 @@ def register_bending(
     tic = time.perf_counter()
     tried = (symmetry,) if symmetry is not None else tried_symmetries(options)
     ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
-    best = ranked[0][1]
-    starts = [k for k, e in ranked if e <= (1.0 + CHOICE_MARGIN) * best][: options.max_starts]
+    fair = [(k, e, m) for k, e, m in ranked if not m] or ranked  # mirrored starts only when nothing else is left
+    best = fair[0][1]
+    starts = [k for k, e, _ in fair if e <= (1.0 + CHOICE_MARGIN) * best][: options.max_starts]
     timings["search"] = time.perf_counter() - tic
     area = second.area()
     window = descent_window(first, options.bend_window)
     runs = [_descend(first, second, area, k, window, options, finest, Log(callback, timings)) for k in starts]
-    bend_energy, k, h_copy, log = min(runs, key=lambda run: run[0])
-    plain = Objective(first, apply_symmetry(second, k), area)
-    rotation = kabsch(plain.best_rotation_covariance(h_copy))
-    h = symmetry_map(k, h_copy)
+    chosen = min(runs, key=lambda run: (run.residual.mirrored, run.bend_energy))
+    k, plain = chosen.symmetry, chosen.objective
+    alternatives = []
+    if symmetry is None:
+        with Log(callback, timings).clock("alternatives"):
+            alternatives = find_alternatives(first, second, area, k, chosen, chosen.residual, options, Log(callback))
+    h = symmetry_map(k, chosen.h)
     timings["total"] = time.perf_counter() - start
     params = {
         **options.as_dict(),
-        "bend_energy": float(bend_energy),
+        "bend_energy": chosen.bend_energy,
         "bend_window_used": window,
+        "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
         "starts": [
-            {"symmetry": s, "choice_energy": float(e), "descended": s in starts, "chosen": s == k} for s, e in ranked
+            {
+                "symmetry": run.symmetry,
+                "bend_energy": run.bend_energy,
+                "energy": run.energy,
+                "residual": run.residual.plus,
+                "chosen": run is chosen,
+            }
+            for run in runs
         ],
         "grid_first": list(first.shape),
         "grid_second": list(second.shape),
     }
     return Registration(
-        rotation=rotation,
+        rotation=chosen.rotation,
         h=h,
-        energy=plain.energy(rotation, h_copy),
+        energy=chosen.energy,
         energy_dp=float("nan"),
-        energy_history=np.array(log.energies),
+        energy_history=np.array(chosen.log.energies),
         r=plain.r,
         t=plain.t,
         mode=options.mode,
         params=params,
         timings=timings,
         symmetry=k,
-        energy_stages=tuple(log.stages),
-        transform=similarity(rotation, first.points, second.at(h)),
+        energy_stages=tuple(chosen.log.stages),
+        transform=similarity(chosen.rotation, first.points, second.at(h)),
+        residual=chosen.residual.plus,
+        residual_mirrored=chosen.residual.minus,
+        alternatives=[a.as_dict(chosen.rotation) for a in alternatives],
     )
 
 
-def _descend(first, second, area, k, window, options, finest, log):
-    """E_w descended from h = the k-th symmetry of the square: (E_w, k, h on the symmetric copy's square, log)."""
+@dataclass
+class BentRun:
+    """One symmetry's descent of E_w: the answer on the symmetric copy's square, judged by E and the residual
+    (shaped like :class:`~meshreg.schedule.Candidate` for :func:`~meshreg.alternatives.find_alternatives`)."""
+
+    symmetry: int
+    objective: Objective  # E on the first and the second under ``symmetry``
+    rotation: np.ndarray
+    h: np.ndarray
+    energy: float
+    bend_energy: float
+    residual: Residual
+    log: Log
+
+
+def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
+    """E_w descended from h = the k-th symmetry of the square."""
     copy = apply_symmetry(second, k)
     make = partial(LocalObjective, window=window)
     objective = make(first, copy, area)
@@ -153,4 +193,6 @@ def _descend(first, second, area, k, window, options, finest, log):
     drive = Descent(objective, options, work, nodes, finest)
     rotation, h = drive.descend(np.eye(3), drive.restrict(objective.identity), [options.basis], log)
     rotation, h = drive.polish(rotation, h, log)
-    return objective.energy(rotation, h), k, h, log
+    plain = Objective(first, copy, area)
+    rotation, energy, residual = plain.judge(h)
+    return BentRun(k, plain, rotation, h, float(energy), float(objective.energy(rotation, h)), residual, log)

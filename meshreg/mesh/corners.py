@@ -94,7 +94,8 @@ def search_corners(
 ) -> tuple[np.ndarray, list]:
     """Corners of the second mesh that best match the first's: the ``options.corner_search`` placements of
     :func:`placement_starts`, then PLACEMENT_HALVINGS halving steps around the best, each ranked by the lowest
-    E_w over the symmetries of the square at h = the symmetry (:func:`meshreg.bending.symmetry_energies`, windows
+    E_w over the symmetries of the square at h = the symmetry, mirrored matches aside
+    (:func:`meshreg.bending.symmetry_energies`, windows
     of ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids).
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
@@ -111,7 +112,8 @@ def search_corners(
 
     def rank(start):
         grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n, aa)
-        return symmetry_energies(coarse1, grid, window, symmetries)[0][1]
+        ranked = symmetry_energies(coarse1, grid, window, symmetries)
+        return next((e for _, e, mirrored in ranked if not mirrored), ranked[0][1])
 
     tried = [(float(start), rank(start)) for start in placement_starts(disk2, trials)]
     step = 0.25 / trials
