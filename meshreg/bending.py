@@ -42,6 +42,10 @@ from .search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry, s
 
 CHOICE_GRID = 41  # nodes per axis of the coarse grids on which symmetries and corner placements are ranked
 CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction of the best are descended too
+# a twin of the answer (a symmetry of either surface applied to it) is refined only when its residual as it stands
+# is within this of the answer's (area-1 length): measured 0.002-0.009 above on a four-fold symmetric sheet's
+# remeshed copy (true twins), 0.096 and more on the folded relief sheet (a flat square's symmetries, not the fold's)
+TWIN_MARGIN = 0.05
 WINDOW_CELLS = 4.0  # the descent's windows are at least this many grid cells wide (a rotation is fitted in each)
 
 
@@ -128,7 +132,9 @@ def register_bending(
     alternatives = []
     if symmetry is None:
         with Log(callback, timings).clock("alternatives"):
-            alternatives = find_alternatives(first, second, area, k, chosen, chosen.residual, options, Log(callback))
+            alternatives = find_alternatives(
+                first, second, area, k, chosen, chosen.residual, options, Log(callback), TWIN_MARGIN
+            )
     h = symmetry_map(k, chosen.h)
     timings["total"] = time.perf_counter() - start
     params = {
