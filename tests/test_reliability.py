@@ -580,7 +580,6 @@ def test_meshlab_failure_leaves_the_meshset_as_it_was():
 
 def test_open3d_wrong_types_are_type_errors():
     import open3d as o3d
-
     from meshreg.plugins import open3d as mo3d
 
     v, f, _ = random_disk_mesh(bump(), 300, seed=1)
