@@ -238,6 +238,10 @@ MESH_FLAG_CASES = {
     "--start-basis": (["--mode", "gd", "--start-basis", "2"], lambda r: r.params["start_basis"] == 2),
     "--resolution": (["--resolution", "11"], lambda r: r.h.shape == (11, 11, 2) and r.params["resolution"] == 11),
     "--weights": (["--weights", "cotangent"], lambda r: r.params["weights"] == "cotangent"),
+    "--bend-window": (
+        ["--bend-window", "0"],
+        lambda r: r.params["bend_window"] == 0 and "bend_energy" not in r.params,
+    ),
     "--antialias": (["--antialias", "1"], lambda r: r.params["antialias"] == 1),
     "--no-cleanup": (["--no-cleanup"], lambda r: r.params["cleanup"] is False),
     "--corner-search": (["--corner-search", "2"], lambda r: r.params["corner_search"] == 2),

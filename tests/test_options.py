@@ -85,6 +85,8 @@ def test_flags_parse_into_options_and_defaults_come_from_options():
         ({"corners1": (1, 2, 3)}, "corners1"),
         ({"weights": "uniform"}, "unknown weights"),
         ({"window": 2.5}, "window"),
+        ({"bend_window": -0.1}, "bend_window"),
+        ({"bend_window": 2.0}, "bend_window"),
     ],
 )
 def test_bad_options_name_the_field_and_the_valid_range(changes, message):
@@ -101,6 +103,8 @@ def test_bad_options_name_the_field_and_the_valid_range(changes, message):
         {"step_fraction": 100.0},
         {"rel_tol": float("nan")},
         {"max_rounds": -1},
+        {"choice_window": 0.0},
+        {"refine_triangles": -1.0},
         {"ambiguity": -0.5},
     ],
 )
