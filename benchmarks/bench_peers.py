@@ -73,7 +73,7 @@ from scipy.interpolate import NearestNDInterpolator
 from scipy.spatial import cKDTree
 
 from meshreg import Advanced, Options
-from meshreg.mesh import deform
+from meshreg.mesh import deform, plane
 from meshreg.mesh.correspond import MeshRegistration, register_meshes
 from meshreg.mesh.topology import triangle_areas
 from meshreg.objective import Objective
@@ -380,11 +380,11 @@ def energies(pair: deform.Pair, mr: MeshRegistration) -> dict:
     g1, g2 = mr.grids
     objective = Objective(g1, g2)
     nodes = np.stack(np.meshgrid(g1.r, g1.t, indexing="ij"), axis=-1).reshape(-1, 2)
-    face, bary, _ = deform.locate(mr.uv1, mr.first.faces, nodes)
-    material = deform.interpolate(disk_params(mr.first, pair.first_params), mr.first.faces, face, bary)
+    face, bary, _ = plane.locate(mr.uv1, mr.first.faces, nodes)
+    material = plane.interpolate(disk_params(mr.first, pair.first_params), mr.first.faces, face, bary)
     p2 = disk_params(mr.second, pair.second_params)
-    face, bary, inside = deform.locate(p2, mr.second.faces, material)
-    h_true = deform.interpolate(mr.uv2, mr.second.faces, face, bary)
+    face, bary, inside = plane.locate(p2, mr.second.faces, material)
+    h_true = plane.interpolate(mr.uv2, mr.second.faces, face, bary)
     if not inside.all():  # nodes off the second (holes): nearest known value
         h_true[~inside] = NearestNDInterpolator(nodes[inside], h_true[inside])(nodes[~inside])
     h_true = np.clip(h_true.reshape(len(g1.r), len(g1.t), 2), 0, 1)

@@ -137,24 +137,7 @@ def register_bending(
             )
     h = symmetry_map(k, chosen.h)
     timings["total"] = time.perf_counter() - start
-    params = {
-        **options.as_dict(),
-        "bend_energy": chosen.bend_energy,
-        "bend_window_used": window,
-        "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
-        "starts": [
-            {
-                "symmetry": run.symmetry,
-                "bend_energy": run.bend_energy,
-                "energy": run.energy,
-                "residual": run.residual.plus,
-                "chosen": run is chosen,
-            }
-            for run in runs
-        ],
-        "grid_first": list(first.shape),
-        "grid_second": list(second.shape),
-    }
+    params = _params(options, chosen, runs, ranked, window, first, second)
     return Registration(
         rotation=chosen.rotation,
         h=h,
@@ -173,6 +156,28 @@ def register_bending(
         residual_mirrored=chosen.residual.minus,
         alternatives=[a.as_dict(chosen.rotation) for a in alternatives],
     )
+
+
+def _params(options: Options, chosen, runs, ranked, window: float, first: GridSurface, second: GridSurface) -> dict:
+    """Every parameter of a bending registration and what its choice saw (``result.params``)."""
+    return {
+        **options.as_dict(),
+        "bend_energy": chosen.bend_energy,
+        "bend_window_used": window,
+        "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
+        "starts": [
+            {
+                "symmetry": run.symmetry,
+                "bend_energy": run.bend_energy,
+                "energy": run.energy,
+                "residual": run.residual.plus,
+                "chosen": run is chosen,
+            }
+            for run in runs
+        ],
+        "grid_first": list(first.shape),
+        "grid_second": list(second.shape),
+    }
 
 
 @dataclass

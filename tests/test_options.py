@@ -3,6 +3,7 @@
 import argparse
 import dataclasses
 import inspect
+from pathlib import Path
 
 import pytest
 
@@ -127,3 +128,10 @@ def test_register_stays_the_function_once_the_pipeline_module_is_loaded():
     import meshreg.mesh.correspond  # noqa: F401  (imports meshreg.pipeline, the module behind meshreg.register)
 
     assert callable(meshreg.register) and meshreg.register.__name__ == "register"
+
+
+def test_every_option_is_in_the_parameter_tables():
+    """docs/method.md's tables name every field of Options and Advanced (a field added without them fails)."""
+    doc = (Path(__file__).parents[1] / "docs" / "method.md").read_text()
+    missing = [f.name for c in (Options, Advanced) for f in dataclasses.fields(c) if f"| `{f.name}`" not in doc]
+    assert not missing, missing
