@@ -8,7 +8,7 @@ meshreg morph A B -o morph.gif | meshreg morph OUT/atlas.npz --mode 1 -o mode1.g
 meshreg paper [--grid M] [--modes ...]        rerun the paper's ten pairs beside its numbers
 meshreg demo [-o OUT]                          register a sample pair and write result + figures
 
-The registration flags are generated from :data:`meshreg.options.FLAGS`. Exit status: 0 done, 1 a run that did
+The registration flags are generated from :data:`meshreg.flags.FLAGS`. Exit status: 0 done, 1 a run that did
 not finish its work, 2 bad input or usage, 130 Ctrl-C, 143 SIGTERM (see :func:`main`).
 """
 
@@ -23,6 +23,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import InputError, RunError
+from .report import atlas_summary, count, summary
 
 EXIT_RUN, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 2, 130, 143
 
@@ -51,34 +52,6 @@ def _progress_callback(bar):
     return callback
 
 
-def _summary(written) -> str:
-    import numpy as np
-
-    result = written.result
-    rows = [
-        f"energy E       {result.energy:.6g}   (squared elastic distance, both surfaces at area 1)",
-        f"distance       {result.distance:.6g}   (sqrt(E))",
-    ]
-    if np.isfinite(result.energy_dp):
-        rows.append(f"E after DP     {result.energy_dp:.6g}")
-    rows.append(
-        f"residual       {result.residual:.4g}   (RMS of R c1 - c2 o h, both centred and at area 1; "
-        f"{result.residual_mirrored:.4g} against the mirror image)"
-    )
-    rows += [f"note           {line}" for line in result.correspondence_notes()]
-    rows.append(
-        "rotation R     "
-        + np.array2string(result.rotation, precision=4, suppress_small=True).replace("\n", "\n               ")
-    )
-    rows.append("time (s)       " + ", ".join(f"{k} {v:.2f}" for k, v in result.timings.items()))
-    if written.reverse is not None:
-        reverse = written.reverse
-        rows.append(f"reverse E      {reverse.energy:.6g}   (second rotated, first reparametrized)")
-        rows.append(f"mean E         {0.5 * (result.energy + reverse.energy):.6g}")
-    rows.append("written        " + ", ".join(str(f) for f in written.files))
-    return "\n".join(rows)
-
-
 def _registering(quiet: bool):
     from tqdm import tqdm
 
@@ -95,7 +68,7 @@ def _kernels_cached() -> bool:
 
 
 def cmd_register(args) -> int:
-    from .options import options_from_args
+    from .flags import options_from_args
     from .outputs import register_files
 
     options = options_from_args(args)
@@ -112,7 +85,7 @@ def cmd_register(args) -> int:
         )
     for note in written.notes:
         print(note)
-    print(_summary(written))
+    print(summary(written))
     return 0
 
 
@@ -125,20 +98,20 @@ def cmd_demo(args) -> int:
         written = run_demo(args.output, callback=_progress_callback(bar))
     for note in written.notes:
         print(note)
-    print(_summary(written))
+    print(summary(written))
     return 0
 
 
 def cmd_matrix(args) -> int:
     from tqdm import tqdm
 
+    from .flags import options_from_args
     from .matrix_run import check_matrix, matrix_files
-    from .options import options_from_args
 
     options = options_from_args(args)
     check_matrix(args.files, args.output, options, jobs=args.jobs, scheduler=args.scheduler)
     n = len(args.files)
-    pairs = _count(n * (n - 1) // 2, "pair")
+    pairs = count(n * (n - 1) // 2, "pair")
     bars = {}
 
     def preparing(done, total):
@@ -176,21 +149,17 @@ def cmd_matrix(args) -> int:
             print(f"failed pair {Path(args.files[i]).name} / {Path(args.files[j]).name}: {reason}")
     if run.reused:
         print(
-            f"{run.written} already holds the finished matrix of these {_count(n, 'surface')} and parameters "
+            f"{run.written} already holds the finished matrix of these {count(n, 'surface')} and parameters "
             "(newer than every input): nothing recomputed (--force recomputes)"
         )
     elif run.written is not None:
-        print(f"{_count(n, 'surface')}, {pairs} -> {run.written} (distance = sqrt(E), energy, rotations, seconds)")
+        print(f"{count(n, 'surface')}, {pairs} -> {run.written} (distance = sqrt(E), energy, rotations, seconds)")
     if run.figure is not None:
         print(f"figure         {run.figure}")
     if run.error:
         print(f"meshreg: error: {run.error}", file=sys.stderr)
         return EXIT_RUN
     return 0
-
-
-def _count(k: int, noun: str) -> str:
-    return f"{k} {noun}{'' if k == 1 else 's'}"
 
 
 def cmd_view(args) -> int:
@@ -221,42 +190,10 @@ def _stage_bars(quiet: bool):
     return progress, close
 
 
-def _atlas_summary(written) -> str:
-    result = written.atlas
-    k = len(result.explained)
-    rows = [
-        f"members        {len(result.names)} kept, {len(result.failures)} left out; medoid {result.medoid}",
-        f"template       {result.grid[0]} x {result.grid[1]} grid ({len(result.template)} vertices, "
-        f"{len(result.faces)} triangles), shared by every aligned member",
-        "mean E         "
-        + " -> ".join(f"{e:.4g}" for e in result.objective)
-        + f"   (per iteration; kept iteration {result.params['kept_iteration']}"
-        + ("" if result.params["converged"] else ", not converged: raise --max-iterations")
-        + ")",
-        f"karcher gap    {result.params['karcher_gap']:.3g}   (share of mean E the q-space mean would remove)",
-        f"spread         {100 * result.params['spread']:.3g}% of the template's size (RMS distance of the aligned "
-        "members' vertices from the mean's, sizes equalized)",
-        "explained      "
-        + ", ".join(f"mode {m + 1} {100 * e:.1f}%" for m, e in enumerate(result.explained[: min(k, 5)])),
-        f"time (s)       total {result.timings['total']:.1f}, per member {result.timings['per_member']:.2f} "
-        f"(medoid {result.timings['medoid']:.1f}, iterations {result.timings['iterations']:.1f})",
-    ]
-    for name, reason in result.failures.items():
-        rows.append(f"left out       {name}: {reason}")
-    if written.correlations is not None:
-        rows.append(
-            "known params   canonical correlations of modes 1-2 scores with (relief, uplift): "
-            + ", ".join(f"{c:.3f}" for c in written.correlations)
-        )
-    shown = [f for f in written.files if f.parent.name != "aligned"]
-    rows.append("written        " + ", ".join(str(f) for f in shown) + f", aligned/ ({len(result.names)} PLY)")
-    return "\n".join(rows)
-
-
 def cmd_atlas(args) -> int:
     from .atlas_outputs import atlas_demo, atlas_files
     from .atlas_settings import ATLAS_RESOLUTION, AtlasSettings
-    from .options import options_from_args
+    from .flags import options_from_args
 
     progress, close = _stage_bars(args.quiet)
     try:
@@ -283,7 +220,7 @@ def cmd_atlas(args) -> int:
             )
     finally:
         close()
-    print(_atlas_summary(written))
+    print(atlas_summary(written))
     return 0
 
 
@@ -313,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_register(sub) -> None:
-    from .options import add_flags
+    from .flags import add_flags
 
     reg = sub.add_parser("register", help="register two surfaces (two disk meshes or two grid files)")
     reg.add_argument(
@@ -353,7 +290,7 @@ def _add_demo(sub) -> None:
 
 
 def _add_matrix(sub) -> None:
-    from .options import add_flags
+    from .flags import add_flags
 
     matrix = sub.add_parser("matrix", help="pairwise elastic distances of a collection (grids and/or meshes)")
     matrix.add_argument("files", nargs="+", help="grid files and/or meshes")
@@ -376,7 +313,7 @@ def _add_matrix(sub) -> None:
 
 def _add_atlas(sub) -> None:
     from .atlas_settings import ATLAS_RESOLUTION, AtlasSettings
-    from .options import add_flags
+    from .flags import add_flags
 
     defaults = AtlasSettings()
     atlas = sub.add_parser(

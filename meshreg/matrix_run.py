@@ -161,6 +161,7 @@ def _finished(out: Path, files: list[Path], options: Options) -> DistanceMatrix 
         done = DistanceMatrix.load(out)
     except InputError:
         return None
+
     def key(params: dict) -> str:  # force changes no result
         return json.dumps({k: v for k, v in params.items() if k != "force"}, sort_keys=True, default=str)
 

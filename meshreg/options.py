@@ -5,9 +5,9 @@
 they are made: an invalid value raises :class:`~meshreg.errors.InputError` naming the valid range. The same
 object travels from the command line (or the API, the adapters, the distance matrix) to the solvers.
 
-:data:`FLAGS` is the command line's view of these fields: one row per flag. :func:`add_flags` builds the
-argparse options from it and :func:`options_from_args` reads them back, so the flags cannot drift from the
-fields. Adding an option is one field here plus one row in :data:`FLAGS`.
+:data:`meshreg.flags.FLAGS` is the command line's view of these fields: one row per flag, from which the argparse
+options are built and read back, so the flags cannot drift from the fields. Adding an option is one field here plus
+one row in :data:`meshreg.flags.FLAGS` (and, for a registration option, a keyword of :func:`meshreg.register`).
 
 Examples
 --------
@@ -118,15 +118,15 @@ class Advanced:
     max_rounds: int = 10
     round_tol: float = 1e-4
     start_margin: float = 0.5
-    max_iterations: int = 200
-    rel_tol: float = 1e-3
-    abs_tol: float = 1e-9
-    grad_tol: float = 1e-10
-    zero_energy: float = 1e-10
-    step_fraction: float = 0.5
-    max_backtracks: int = 30
-    damping: float = 1e-3
-    cg_iterations: int = 100
+    max_iterations: int = StepParams.max_iterations
+    rel_tol: float = StepParams.rel_tol
+    abs_tol: float = StepParams.abs_tol
+    grad_tol: float = StepParams.grad_tol
+    zero_energy: float = StepParams.zero_energy
+    step_fraction: float = StepParams.step_fraction
+    max_backtracks: int = StepParams.max_backtracks
+    damping: float = StepParams.damping
+    cg_iterations: int = StepParams.cg_iterations
     refine_iterations: int = 10
     fine_iterations: int = 5
     refine_rel_tol: float = 1e-2
@@ -186,10 +186,10 @@ class Options:
         Mode "auto" with ``search``: also try the 8 symmetries of the square on the second surface. Default True.
     keep_orientation : bool
         Mode "auto" with ``symmetries``: try only the 4 symmetries that keep orientation (the rotations of the
-        square), so that the front side of each surface stays its front side. For meshes whose faces are wound
-        consistently (a cohort from one pipeline): nearly mirror-symmetric sheets otherwise admit a mirrored,
-        upside-down match whose E is within a few percent of the right one. Default False (a mesh wound the
-        other way, or a grid with r and t swapped, is matched too).
+        square), so that the front side of each surface stays its front side: for meshes whose faces are wound
+        consistently (a cohort from one pipeline), half the start search is then saved, and a member is never
+        matched back to front. Default False (a mesh wound the other way, or a grid with r and t swapped, is
+        matched too; matches on the mirror image are rejected by the residual either way).
     max_starts : int
         Mode "auto": most ranked starts registered in full (see ``Advanced.start_margin``). Default 3.
     symmetry : int or None
@@ -335,179 +335,3 @@ def _number(name: str, value, low: float, high: float, low_open: bool = False) -
     if not ok or value < low or (low_open and value == low) or value > high:
         bound = f"({low}" if low_open else f"[{low}"
         raise InputError(f"{name} must be a finite number in {bound}, {high}], got {value!r}")
-
-
-@dataclass(frozen=True)
-class Flag:
-    """One command-line flag: the option field it sets (``advanced.x`` for an :class:`Advanced` field)."""
-
-    flag: str
-    field: str
-    help: str
-    type: type | None = None
-    nargs: int | str | None = None
-    metavar: str | tuple | None = None
-    choices: tuple | None = None
-    group: str = "registration"
-    const: object = None  # a flag without a value sets this (e.g. --no-cleanup sets cleanup False)
-
-
-FLAGS: tuple[Flag, ...] = (
-    Flag("--mode", "mode", "how to register (default auto)", str, choices=MODES),
-    Flag("--window", "window", "DP window W (default 10)", int, metavar="W"),
-    Flag("--basis", "basis", "KL of the Riseth basis, 2 (KL + 2 KL^2) fields (default 5)", int, metavar="KL"),
-    Flag("--solver", "solver", "direction of the basis descent (default gauss-newton)", str, choices=SOLVERS),
-    Flag("--refine", "refine", "refinement after the basis descent (default nodes)", str, choices=REFINEMENTS),
-    Flag(
-        "--max-starts",
-        "max_starts",
-        "mode auto: most ranked starts registered in full (default 3; 1 = the best-ranked only)",
-        int,
-        metavar="K",
-    ),
-    Flag(
-        "--keep-orientation",
-        "keep_orientation",
-        "mode auto: only the 4 symmetries of the square that keep each surface's front side (meshes wound "
-        "consistently)",
-        const=True,
-    ),
-    Flag(
-        "--symmetry",
-        "symmetry",
-        "pin the symmetry of the square applied to the second surface (0-7, as listed among the alternatives; "
-        "default: searched in mode auto)",
-        int,
-        metavar="K",
-    ),
-    Flag(
-        "--max-rounds", "advanced.max_rounds", "most descent + Kabsch rounds per stage (default 10)", int, metavar="N"
-    ),
-    Flag(
-        "--smoothing",
-        "smoothing",
-        "mode gd: Gaussian scale-space levels of its third path, in side lengths, "
-        "largest first (default 0.1; give none to turn it off)",
-        float,
-        nargs="*",
-        metavar="SIGMA",
-    ),
-    Flag(
-        "--start-basis",
-        "start_basis",
-        "mode gd: KL of the coarse basis its second path starts in (default 3)",
-        int,
-        metavar="KL",
-    ),
-    Flag(
-        "--resolution",
-        "resolution",
-        "meshes are resampled on N x N grids (default 101)",
-        int,
-        metavar="N",
-        group="meshes",
-    ),
-    Flag(
-        "--weights",
-        "weights",
-        "Laplacian weights of the map to the square (default mean-value)",
-        str,
-        choices=WEIGHTS,
-        group="meshes",
-    ),
-    Flag(
-        "--antialias",
-        "antialias",
-        "grid nodes average the mesh sampled K times finer (default 3; 1 = point samples)",
-        int,
-        metavar="K",
-        group="meshes",
-    ),
-    Flag(
-        "--no-cleanup",
-        "cleanup",
-        "refuse to repair meshes (holes, pieces, ears, pinched vertices)",
-        group="meshes",
-        const=False,
-    ),
-    Flag(
-        "--force",
-        "force",
-        "run even when the grid size, --window, --resolution, --corner-search or --jobs exceed the limits on "
-        "memory and time (the refusal states the estimate); matrix: recompute a finished matrix",
-        const=True,
-    ),
-    Flag(
-        "--corners1",
-        "corners1",
-        "corner vertex ids of the first mesh's boundary",
-        int,
-        nargs=4,
-        metavar="ID",
-        group="corners",
-    ),
-    Flag(
-        "--corners2",
-        "corners2",
-        "corner vertex ids of the second mesh's boundary",
-        int,
-        nargs=4,
-        metavar="ID",
-        group="corners",
-    ),
-    Flag(
-        "--corner-search",
-        "corner_search",
-        "trial corner placements on round boundaries, 0 = off (default 8)",
-        int,
-        metavar="K",
-        group="meshes",
-    ),
-)
-
-
-def _dest(row: Flag) -> str:
-    return "opt_" + row.field.replace(".", "__")
-
-
-def add_flags(parser, groups=("registration", "meshes", "corners")) -> None:
-    """Add the flags of :data:`FLAGS` in ``groups`` to an argparse parser (defaults left to :class:`Options`)."""
-    sections = {}
-    for row in FLAGS:
-        if row.group not in groups:
-            continue
-        if row.group not in sections:
-            sections[row.group] = parser if row.group == "registration" else parser.add_argument_group(row.group)
-        kwargs = {"dest": _dest(row), "default": None, "help": row.help}
-        if row.const is not None:
-            kwargs.update(action="store_const", const=row.const)
-        else:
-            kwargs.update(
-                {
-                    k: v
-                    for k, v in (
-                        ("type", row.type),
-                        ("nargs", row.nargs),
-                        ("metavar", row.metavar),
-                        ("choices", row.choices),
-                    )
-                    if v is not None
-                }
-            )
-        sections[row.group].add_argument(row.flag, **kwargs)
-
-
-def options_from_args(args, **fixed) -> Options:
-    """The :class:`Options` of parsed arguments: each flag given sets its field; ``fixed`` sets others."""
-    top, advanced = dict(fixed), {}
-    for row in FLAGS:
-        value = getattr(args, _dest(row), None)
-        if value is None:
-            continue
-        if isinstance(value, list):
-            value = tuple(value)
-        if row.field.startswith("advanced."):
-            advanced[row.field.split(".", 1)[1]] = value
-        else:
-            top[row.field] = value
-    return Options(**top, advanced=Advanced(**advanced))

@@ -114,22 +114,13 @@ def write_grid_registration(
     """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result) into
     the prepared directory ``out``, all together or not at all."""
     from .pipeline import register_with
-    from .viz import plot_registration
 
     result = register_with(first, second, options, callback)
     reverse = register_with(second, first, options) if symmetric else None
     names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
     with staged(out, names) as stage:
         result.save(stage / RESULT_FILE)
-        plot_registration(
-            result.apply(first.scaled().points),
-            second.scaled().at(result.h),
-            result.energy_history,
-            stage / FIGURE_FILE,
-            title=f"{options.mode}: E = {result.energy:.3g}, residual = {result.residual:.3g}",
-            stages=result.energy_stages,
-            notes=result.correspondence_notes(),
-        )
+        _registration_figure(result, first, second, stage / FIGURE_FILE, f"{options.mode}: E = {result.energy:.3g}")
         if reverse is not None:
             reverse.save(stage / REVERSE_FILE)
     return Written(result, [out / name for name in names], reverse=reverse)
@@ -147,7 +138,7 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
     """:func:`write_mesh_registration`, also returning the MeshRegistration."""
     from .mesh.correspond import register_meshes
     from .mesh.export import colored_outputs, write_ply
-    from .viz import plot_meshes, plot_registration
+    from .viz import plot_meshes
 
     mr = register_meshes(first, second, options, callback)
     result = mr.result
@@ -175,15 +166,7 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
             second_to_first=np.linalg.inv(result.transform),
             distance=result.distances() / np.sqrt(result.second.area()),
         )
-        plot_registration(
-            result.apply(g1.scaled().points),
-            g2.scaled().at(result.h),
-            result.energy_history,
-            stage / FIGURE_FILE,
-            title=f"{title}, residual = {result.residual:.3g}",
-            stages=result.energy_stages,
-            notes=result.correspondence_notes(),
-        )
+        _registration_figure(result, g1, g2, stage / FIGURE_FILE, title)
         if html:
             from .view import write_view
 
@@ -201,6 +184,21 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
         if info["flipped"]:
             notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
     return Written(result, [out / name for name in names], notes), mr
+
+
+def _registration_figure(result: Registration, first, second, path: Path, title: str) -> Path:
+    """``registration.png`` of a result of the grids ``first`` and ``second`` (as given; both drawn at area 1)."""
+    from .viz import plot_registration
+
+    return plot_registration(
+        result.apply(first.scaled().points),
+        second.scaled().at(result.h),
+        result.energy_history,
+        path,
+        title=f"{title}, residual = {result.residual:.3g}",
+        stages=result.energy_stages,
+        notes=result.correspondence_notes(),
+    )
 
 
 def run_demo(out, options: Options | None = None, callback: Progress | None = None, html: bool = True) -> Written:

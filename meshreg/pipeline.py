@@ -40,6 +40,7 @@ from functools import partial
 import numpy as np
 
 from .alternatives import find_alternatives
+from .choice import choose, choose_unmirrored, close_starts, mirror_record, ranked_starts, spare_starts
 from .correspondence import Side
 from .errors import InputError
 from .grid import GridSurface
@@ -48,20 +49,10 @@ from .options import Advanced, Options
 from .result import Registration
 from .rotation import similarity
 from .schedule import Candidate, Descent, Log, Progress, dp_stage, gd_paths, valid_start, work_objective
-from .search import Start, apply_symmetry, best_start, symmetry_map
+from .search import Start, apply_symmetry, symmetry_map
 from .surfaces import Mesh, as_input
 
 DEFAULTS = Options()
-# a start ranked lower must beat a better-ranked one by this fraction of E to win; the identity symmetry goes
-# first when its coarse energy is within this fraction of the best
-SYMMETRY_MARGIN = 0.05
-# the search reports that a mirror image of the second surface fits clearly better when its best coarse energy is
-# below this fraction of the chosen start's
-MIRROR_MARGIN = 0.5
-# two starts whose coarse energies agree to this relative tolerance are twins: a symmetry of the surfaces maps one
-# problem onto the other (measured: the twins of the paper's pairs agree to 1e-15), so only the first is registered;
-# the other stays a spare, and the chosen answer's symmetric twins are listed by meshreg.alternatives
-TWIN_TOL = 1e-9
 
 
 def register(
@@ -182,24 +173,9 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
     options.check_grids(first.shape, second.shape)
     timings = {}
     area = second.area()
-    ranked, mirror = [Start(options.symmetry or 0, None, float("nan"))], None
     searched = options.mode == "auto" and options.search
-    if searched:
-        tic = time.perf_counter()
-        found = best_start(
-            first,
-            second,
-            symmetries=options.symmetries,
-            keep_orientation=options.keep_orientation,
-            only=options.symmetry,
-        )
-        ranked = [s for s in found if not s.mirrored]
-        mirror = next((s for s in found if s.mirrored), None)
-        if not ranked:
-            pinned = "" if options.symmetry is None else f" under the pinned symmetry {options.symmetry}"
-            raise InputError(f"every start{pinned} puts the first surface on a mirror image of the second")
-        timings["search"] = time.perf_counter() - tic
-    starts = _close_starts(ranked, options.max_starts, options.advanced.start_margin) if searched else ranked
+    ranked, mirror = ranked_starts(first, second, options, timings)
+    starts = close_starts(ranked, options.max_starts, options.advanced.start_margin) if searched else ranked
     solve = SOLVE[options.mode]
 
     def run(s: Start) -> Candidate:
@@ -207,9 +183,9 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
 
     candidates = [run(s) for s in starts]
     if searched:
-        chosen, residual = _choose_unmirrored(candidates, starts, _spare(ranked, starts), run, options)
+        chosen, residual = choose_unmirrored(candidates, starts, spare_starts(ranked, starts), run, options)
     else:
-        chosen = _choose(candidates, options)
+        chosen = choose(candidates, options)
         candidates[chosen].polish()
         residual = candidates[chosen].residual()
     best, symmetry = candidates[chosen], starts[chosen].symmetry
@@ -218,23 +194,7 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
         with Log(callback, timings).clock("alternatives"):
             alternatives = find_alternatives(first, second, area, symmetry, best, residual, options, Log(callback))
     timings["total"] = time.perf_counter() - start
-    params = {
-        **options.as_dict(),
-        "gd_path": best.gd_path,
-        "starts": [
-            {
-                "symmetry": s.symmetry,
-                "coarse_energy": None if np.isnan(s.energy) else float(s.energy),
-                "energy": float(c.energy),
-                "residual": c.residual().plus,
-                "refined": c is best,
-            }
-            for s, c in zip(starts, candidates, strict=True)
-        ],
-        "mirror": _mirror_record(mirror, starts[chosen]),
-        "grid_first": list(best.objective.first.shape),
-        "grid_second": list(best.objective.second.shape),
-    }
+    params = _params(options, best, starts, candidates, mirror_record(mirror, starts[chosen]))
     h = symmetry_map(symmetry, best.h)
     return Registration(
         rotation=best.rotation,
@@ -256,78 +216,25 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
     )
 
 
-def _choose_unmirrored(candidates: list[Candidate], starts: list[Start], spare: list[Start], run, options: Options):
-    """The chosen candidate among those whose aligned first surface is not on the mirror image of the second,
-    refined, and its residual. Candidates are judged after the basis descent and again once refined; when every
-    one is mirrored, the ``spare`` starts are registered one by one (``candidates`` and ``starts`` grow).
-
-    Raises
-    ------
-    InputError
-        When no start gives a correspondence that keeps the orientation.
-    """
-    rejected = set()
-    while True:
-        fair = [k for k, c in enumerate(candidates) if k not in rejected and not c.residual().mirrored]
-        if not fair:
-            if not spare:
-                raise InputError(
-                    "every correspondence found puts the first surface on a mirror image of the second "
-                    f"(lowest E {min(c.energy for c in candidates):.3g}): are they mirror images of each other?"
-                )
-            starts.append(spare.pop(0))
-            candidates.append(run(starts[-1]))
-            continue
-        chosen = fair[_choose([candidates[k] for k in fair], options)]
-        residual = candidates[chosen].polish().residual()
-        if not residual.mirrored:
-            return chosen, residual
-        rejected.add(chosen)
-
-
-def _spare(ranked: list[Start], starts: list[Start]) -> list[Start]:
-    """The ranked starts not registered yet, best first."""
-    return [s for s in ranked if all(s is not t for t in starts)]
-
-
-def _mirror_record(mirror: Start | None, chosen: Start) -> dict | None:
-    """What the search saw of a mirror image: the best mirrored start's symmetry and coarse E, and whether it
-    fits clearly better than the chosen start (coarse E below MIRROR_MARGIN times the chosen start's)."""
-    if mirror is None:
-        return None
+def _params(options: Options, best: Candidate, starts: list[Start], candidates: list[Candidate], mirror) -> dict:
+    """Every parameter of a registration and what its search saw (``result.params``)."""
     return {
-        "symmetry": mirror.symmetry,
-        "coarse_energy": float(mirror.energy),
-        "fits_better": bool(mirror.energy < MIRROR_MARGIN * chosen.energy),
+        **options.as_dict(),
+        "gd_path": best.gd_path,
+        "starts": [
+            {
+                "symmetry": s.symmetry,
+                "coarse_energy": None if np.isnan(s.energy) else float(s.energy),
+                "energy": float(c.energy),
+                "residual": c.residual().plus,
+                "refined": c is best,
+            }
+            for s, c in zip(starts, candidates, strict=True)
+        ],
+        "mirror": mirror,
+        "grid_first": list(best.objective.first.shape),
+        "grid_second": list(best.objective.second.shape),
     }
-
-
-def _choose(candidates: list[Candidate], options: Options) -> int:
-    """The lowest E after the basis descent wins, near ties (within SYMMETRY_MARGIN) going to the better-ranked
-    start; only the winner is refined (on the paper's pairs and nearly symmetric meshes the order of the starts
-    by this E was the order by their refined E, but for near ties)."""
-    lowest = min(c.energy for c in candidates)
-    bar = (1.0 + SYMMETRY_MARGIN) * lowest + options.advanced.abs_tol
-    return next(k for k, c in enumerate(candidates) if c.energy <= bar)
-
-
-def _close_starts(starts: list[Start], max_starts: int, margin: float) -> list[Start]:
-    """The ranked starts worth a full registration: the best, then those whose coarse energy is within
-    ``margin`` of it (at most ``max_starts``), twins left out (a start whose coarse energy equals, within TWIN_TOL,
-    that of one kept already: the same problem under a symmetry of the surfaces). The identity symmetry goes first
-    when it is within SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given
-    parametrization)."""
-    best = starts[0]
-    identity = next((s for s in starts if s.symmetry == 0), best)
-    if identity.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
-        starts = [identity] + [s for s in starts if s is not identity]
-    close = []
-    for s in starts:
-        if s.energy > (1.0 + margin) * best.energy and s is not starts[0]:
-            continue
-        if not any(abs(s.energy - k.energy) <= TWIN_TOL * abs(k.energy) for k in close):
-            close.append(s)
-    return close[:max_starts]
 
 
 def _dp_only(first: GridSurface, second: GridSurface, area: float, rotation, options: Options, log: Log) -> Candidate:

@@ -90,6 +90,15 @@ def plot_registration(
     return path
 
 
+def _save(fig: Figure, path, title: str, dpi: int) -> Path:
+    """Title the figure, lay it out and write it to ``path`` (PNG)."""
+    fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
 def _level_starts(stages) -> list[tuple[int, str]]:
     """(index, level) where each level of a run begins in its energy history; Kabsch steps belong to the level
     around them, and E on arrival at the full grid to the refinement that follows."""
@@ -207,11 +216,7 @@ def plot_meshes(
         _draw_mesh(ax, (v1 - v1.mean(axis=0)) @ view.T, f1, colors, "distance to the corresponding point")
         bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), ax=ax, shrink=0.6, pad=0.02)
         bar.set_label("fraction of sqrt(area)")
-    fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    return path
+    return _save(fig, path, title or "corresponding points share a colour and a checkerboard square", dpi=110)
 
 
 def _draw_mesh(ax, points: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, title: str) -> None:
@@ -314,11 +319,7 @@ def plot_modes(mean: np.ndarray, modes: np.ndarray, deviations: np.ndarray, face
         ax = fig.add_subplot(1, 1, 1, projection="3d")
         _draw_surface(ax, turned[0], faces, np.zeros(len(mean)), 1.0, box)
         ax.set_title("mean (no variation)")
-    fig.suptitle(title or "modes of variation")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=80)
-    return path
+    return _save(fig, path, title or "modes of variation", dpi=80)
 
 
 def plot_scores(scores: np.ndarray, explained: np.ndarray, names, path, title: str = "") -> Path:
@@ -343,11 +344,7 @@ def plot_scores(scores: np.ndarray, explained: np.ndarray, names, path, title: s
     bars.set_ylabel("explained variance (%)")
     bars.set_ylim(0, 100)
     bars.legend(loc="center right")
-    fig.suptitle(title or f"{len(labels)} members: scores on the principal modes")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    return path
+    return _save(fig, path, title or f"{len(labels)} members: scores on the principal modes", dpi=90)
 
 
 def write_morph(frames: np.ndarray, faces: np.ndarray, path, fps: int = 12, title: str = "") -> Path:

@@ -210,7 +210,7 @@ def _boundary_corners(vertices, faces, k: int) -> list[int]:
     return [int(disk.vertex_map[loop[i]]) for i in np.linspace(0, len(loop), 5).astype(int)[:4] + k]
 
 
-# per flag of meshreg.options.FLAGS: the arguments given, and what result.npz must then record; each row runs the
+# per flag of meshreg.flags.FLAGS: the arguments given, and what result.npz must then record; each row runs the
 # command line on two small meshes (--resolution 13 and --corner-search 0 unless the row sets them)
 MESH_FLAG_CASES = {
     "--mode": (["--mode", "dp+gd"], lambda r: r.mode == "dp+gd" and "search" not in r.timings),
@@ -247,7 +247,7 @@ MESH_FLAG_CASES = {
 
 
 def test_every_flag_has_a_mesh_case():
-    from meshreg.options import FLAGS
+    from meshreg.flags import FLAGS
 
     assert {row.flag for row in FLAGS} == set(MESH_FLAG_CASES)
 

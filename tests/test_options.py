@@ -8,7 +8,8 @@ import pytest
 
 import meshreg
 from meshreg.errors import InputError
-from meshreg.options import FLAGS, Advanced, Options, add_flags, options_from_args
+from meshreg.flags import FLAGS, add_flags, options_from_args
+from meshreg.options import Advanced, Options
 
 REGISTRATION_FIELDS = {f.name for f in dataclasses.fields(Options)} - {"advanced"}
 

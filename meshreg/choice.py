@@ -1,0 +1,116 @@
+"""Which starts of mode "auto" are registered in full, and which candidate is the answer: the lowest E, near
+ties going to the better-ranked start, never a match on the mirror image of the second surface (judged by the
+coordinate residual, :mod:`meshreg.residual`)."""
+
+from __future__ import annotations
+
+import time
+
+from .errors import InputError
+from .grid import GridSurface
+from .options import Options
+from .schedule import Candidate
+from .search import Start, best_start
+
+# a start ranked lower must beat a better-ranked one by this fraction of E to win; the identity symmetry goes
+# first when its coarse energy is within this fraction of the best
+SYMMETRY_MARGIN = 0.05
+# the search reports that a mirror image of the second surface fits clearly better when its best coarse energy is
+# below this fraction of the chosen start's
+MIRROR_MARGIN = 0.5
+# two starts whose coarse energies agree to this relative tolerance are twins: a symmetry of the surfaces maps one
+# problem onto the other (measured: the twins of the paper's pairs agree to 1e-15), so only the first is registered;
+# the other stays a spare, and the chosen answer's symmetric twins are listed by meshreg.alternatives
+TWIN_TOL = 1e-9
+
+
+def ranked_starts(first: GridSurface, second: GridSurface, options: Options, timings: dict):
+    """The starts of mode "auto" with ``search`` ranked best first (:func:`meshreg.search.best_start`; none on the
+    mirror image of the second surface) and the best mirrored start seen, or None; in other modes the one start
+    (the pinned symmetry, no rotation) and None."""
+    if not (options.mode == "auto" and options.search):
+        return [Start(options.symmetry or 0, None, float("nan"))], None
+    tic = time.perf_counter()
+    found = best_start(
+        first, second, symmetries=options.symmetries, keep_orientation=options.keep_orientation, only=options.symmetry
+    )
+    ranked = [s for s in found if not s.mirrored]
+    if not ranked:
+        pinned = "" if options.symmetry is None else f" under the pinned symmetry {options.symmetry}"
+        raise InputError(f"every start{pinned} puts the first surface on a mirror image of the second")
+    timings["search"] = time.perf_counter() - tic
+    return ranked, next((s for s in found if s.mirrored), None)
+
+
+def choose_unmirrored(candidates: list[Candidate], starts: list[Start], spare: list[Start], run, options: Options):
+    """The chosen candidate among those whose aligned first surface is not on the mirror image of the second,
+    refined, and its residual. Candidates are judged after the basis descent and again once refined; when every
+    one is mirrored, the ``spare`` starts are registered one by one (``candidates`` and ``starts`` grow).
+
+    Raises
+    ------
+    InputError
+        When no start gives a correspondence that keeps the orientation.
+    """
+    rejected = set()
+    while True:
+        fair = [k for k, c in enumerate(candidates) if k not in rejected and not c.residual().mirrored]
+        if not fair:
+            if not spare:
+                raise InputError(
+                    "every correspondence found puts the first surface on a mirror image of the second "
+                    f"(lowest E {min(c.energy for c in candidates):.3g}): are they mirror images of each other?"
+                )
+            starts.append(spare.pop(0))
+            candidates.append(run(starts[-1]))
+            continue
+        chosen = fair[choose([candidates[k] for k in fair], options)]
+        residual = candidates[chosen].polish().residual()
+        if not residual.mirrored:
+            return chosen, residual
+        rejected.add(chosen)
+
+
+def spare_starts(ranked: list[Start], starts: list[Start]) -> list[Start]:
+    """The ranked starts not registered yet, best first."""
+    return [s for s in ranked if all(s is not t for t in starts)]
+
+
+def mirror_record(mirror: Start | None, chosen: Start) -> dict | None:
+    """What the search saw of a mirror image: the best mirrored start's symmetry and coarse E, and whether it
+    fits clearly better than the chosen start (coarse E below MIRROR_MARGIN times the chosen start's)."""
+    if mirror is None:
+        return None
+    return {
+        "symmetry": mirror.symmetry,
+        "coarse_energy": float(mirror.energy),
+        "fits_better": bool(mirror.energy < MIRROR_MARGIN * chosen.energy),
+    }
+
+
+def choose(candidates: list[Candidate], options: Options) -> int:
+    """The lowest E after the basis descent wins, near ties (within SYMMETRY_MARGIN) going to the better-ranked
+    start; only the winner is refined (on the paper's pairs and nearly symmetric meshes the order of the starts
+    by this E was the order by their refined E, but for near ties)."""
+    lowest = min(c.energy for c in candidates)
+    bar = (1.0 + SYMMETRY_MARGIN) * lowest + options.advanced.abs_tol
+    return next(k for k, c in enumerate(candidates) if c.energy <= bar)
+
+
+def close_starts(starts: list[Start], max_starts: int, margin: float) -> list[Start]:
+    """The ranked starts worth a full registration: the best, then those whose coarse energy is within
+    ``margin`` of it (at most ``max_starts``), twins left out (a start whose coarse energy equals, within TWIN_TOL,
+    that of one kept already: the same problem under a symmetry of the surfaces). The identity symmetry goes first
+    when it is within SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given
+    parametrization)."""
+    best = starts[0]
+    identity = next((s for s in starts if s.symmetry == 0), best)
+    if identity.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
+        starts = [identity] + [s for s in starts if s is not identity]
+    close = []
+    for s in starts:
+        if s.energy > (1.0 + margin) * best.energy and s is not starts[0]:
+            continue
+        if not any(abs(s.energy - k.energy) <= TWIN_TOL * abs(k.energy) for k in close):
+            close.append(s)
+    return close[:max_starts]
