@@ -68,9 +68,8 @@ def mesh_pair(faces: int):
     """Two terrain meshes of about ``faces`` triangles each, the second rotated and scaled."""
     surface = terrain_function()
     a = random_disk_mesh(surface, faces // 2, seed=2)[:2]
-    b = random_disk_mesh(
-        surface, faces // 2, seed=3, rotation=Rotation.random(random_state=4).as_matrix(), scale=2.0
-    )[:2]
+    turn = Rotation.random(random_state=4).as_matrix()
+    b = random_disk_mesh(surface, faces // 2, seed=3, rotation=turn, scale=2.0)[:2]
     return a, b
 
 
@@ -115,7 +114,7 @@ def main():
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"{platform.python_implementation()} {platform.python_version()}, "
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
-        f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC"
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"
     )
     print("| figure | seconds | E |")
     print("|---|---|---|")

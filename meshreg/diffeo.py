@@ -60,7 +60,8 @@ def largest_step(h: np.ndarray, v: np.ndarray) -> float:
         c2 = dvp[..., 0] * dvq[..., 1] - dvp[..., 1] * dvq[..., 0]
         return c0, c1, c2
 
-    c0, c1, c2 = (np.stack(x) for x in zip(*(coefficients(*t) for t in ((a, b, d), (b, c, a), (c, d, b), (d, a, c)))))
+    corners = ((a, b, d), (b, c, a), (c, d, b), (d, a, c))
+    c0, c1, c2 = (np.stack(x) for x in zip(*(coefficients(*t) for t in corners), strict=True))
     with np.errstate(divide="ignore", invalid="ignore"):
         linear = np.where(c1 < 0, -c0 / c1, np.inf)
         disc = c1 * c1 - 4.0 * c2 * c0
