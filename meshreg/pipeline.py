@@ -255,7 +255,8 @@ def _dp_then_descent(
     objective = Objective(first, second, area)
     drive = Descent(objective, options, *work_objective(objective, first, second, area))
     with log.clock("dp"):
-        rotation, h, energy_dp = dp_stage(drive.work, options, both=both, rotation=rotation)
+        rotation, h, _ = dp_stage(drive.work, options, both=both, rotation=rotation)
+        energy_dp = drive.full_energy(rotation, h)
         log.step("dp", 0, energy_dp)
     rotation, h = drive.descend(rotation, valid_start(drive.work, h), [options.basis], log)
     return Candidate(objective, rotation, h, drive.work.energy(rotation, h), log, energy_dp=energy_dp, pending=drive)
