@@ -4,6 +4,7 @@
     python benchmarks/bench_peers.py --quick               # small meshes: 9 min, 5 min of CPU
     python benchmarks/bench_peers.py --pairs roll-90 fold-90 --tools meshreg param open3d
     python benchmarks/bench_peers.py --diagnose --tools meshreg param --pairs fold-90 roll-90 roll-180
+    python benchmarks/bench_peers.py --tools meshreg param --option bend_window=0.03 advanced.refine_triangles=0
     python benchmarks/bench_peers.py --list
 
 Pairs (:mod:`meshreg.mesh.deform`): each gives, for every vertex of the second mesh, its true corresponding point on
@@ -13,8 +14,10 @@ second's vertices that have a true point (those over the first: the overlap, for
 
 Tools, all on the same meshes:
 
-- ``meshreg``: the command line's default (``register_meshes(a, b, Options())``), each vertex of the second mapped
-  through the registration to the first's square and onto the first mesh; E is printed beside it.
+- ``meshreg``: the command line's default (``register_meshes(a, b, Options())``: corners by the boundary's turning
+  within the surface, the square's symmetry by E_w, E_w descended from the parametrization; docs/bending.md), each
+  vertex of the second mapped through the registration to the first's square and onto the first mesh; E (at the
+  answer) and E_w (what was minimized) are printed beside it.
 - ``param``: the parametrization alone, no optimization: the two harmonic maps to the square with the corners
   meshreg chose, corresponding points sharing uv up to the symmetry of the square meshreg chose (h = sigma; the
   boundary loops start at arbitrary corners, so h = identity alone means nothing); seconds: the mesh preparation.
@@ -36,18 +39,21 @@ vertex by inverse-distance weighting of the 8 nearest subsample displacements. A
 each vertex of the second its closest point on the first (that projection is not timed). A peer that is not
 installed (``pip install 'meshreg[bench]'``) is skipped with a line that says so.
 
-``--diagnose`` adds, on full-overlap pairs: the parametrization under the symmetry closest to the truth (an
-oracle); meshreg and the parametrization without the square's symmetries; both with the true corners (the first's
+``--diagnose`` adds, on full-overlap pairs: meshreg minimizing E itself (``bend_window=0``, the method before issue
+14); the parametrization under the symmetry closest to the truth (an oracle); meshreg and the parametrization
+without the square's symmetries; both with the true corners (the first's
 corners as meshreg chose them, the second's at the boundary vertices whose true points are nearest to those,
 :func:`meshreg.mesh.deform.material_corners`), the parametrization also with the oracle symmetry; and E at
 meshreg's answer, at h = the symmetry it chose and at the true map (each at its best rotation).
 
-Timings are wall-clock seconds on a shared machine: compare them within one run, not across runs.
+Timings: wall-clock seconds and CPU seconds of the process (all its threads) on a shared machine: compare them
+within one run, not across runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import datetime
 import os
 import platform
@@ -59,8 +65,8 @@ import numpy as np
 from scipy.interpolate import NearestNDInterpolator
 from scipy.spatial import cKDTree
 
-from meshreg import Options
-from meshreg.mesh import deform
+from meshreg import Advanced, Options
+from meshreg.mesh import deform, plane
 from meshreg.mesh.correspond import MeshRegistration, register_meshes
 from meshreg.mesh.topology import triangle_areas
 from meshreg.objective import Objective
@@ -103,12 +109,14 @@ def pair_builders(quick: bool) -> dict:
 
 @dataclass
 class Outcome:
-    """One tool's prediction on one pair: points (n2, 3) on the first mesh (NaN: none), seconds, a note."""
+    """One tool's prediction on one pair: points (n2, 3) on the first mesh (NaN: none), wall and CPU seconds, a
+    note."""
 
     points: np.ndarray | None
     seconds: float
     note: str = ""
     extra: dict = field(default_factory=dict)
+    cpu: float = float("nan")
 
 
 # ---- meshreg and the parametrization alone
@@ -117,11 +125,18 @@ class Outcome:
 def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, MeshRegistration]:
     """meshreg's prediction and the parametrization-alone baseline from the same run."""
     n2 = len(pair.second[0])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     mr = register_meshes(pair.first, pair.second, options)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     energy = mr.result.energy
-    found = Outcome(deform.matched_points(mr, n2), seconds, f"E = {energy:.3g}", {"E": energy})
+    note = f"E = {energy:.3g}"
+    if "bend_energy" in mr.result.params:
+        note += f", E_w = {mr.result.params['bend_energy']:.3g}"
+        ranking = mr.result.params["symmetry_ranking"]
+        ranked = [s["choice_energy"] for s in ranking if not s["mirrored"]]
+        if len(ranked) > 1:  # how clearly E_w at the start picked the square's symmetry
+            note += f", symmetry {mr.result.symmetry}: next E_w {ranked[1] / ranked[0]:.2f} x"
+    found = Outcome(deform.matched_points(mr, n2), seconds, note, {"E": energy}, cpu)
     note = f"h = symmetry {mr.result.symmetry} of the square (meshreg's)"
     baseline = Outcome(deform.parametrization_points(mr, n2), seconds - mr.result.timings["total"], note)
     return found, baseline, mr
@@ -143,15 +158,17 @@ class Frames:
     factor: float
     mesh_a: object
     poses: dict = field(default_factory=dict)
-    borrowed: float = 0.0
+    borrowed: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     def pose(self, key: str, make):
-        """A start shared by several peers (made once): its seconds are added to every peer that uses it."""
+        """A start shared by several peers (made once): its wall and CPU seconds are added to every peer that uses
+        it."""
         if key not in self.poses:
-            t0 = time.perf_counter()
-            self.poses[key] = (make(self), time.perf_counter() - t0)
+            t0, c0 = time.perf_counter(), time.process_time()
+            pose = make(self)
+            self.poses[key] = (pose, np.array([time.perf_counter() - t0, time.process_time() - c0]))
         else:
-            self.borrowed += self.poses[key][1]
+            self.borrowed = self.borrowed + self.poses[key][1]
         return self.poses[key][0]
 
     def to_first(self, moved_b: np.ndarray) -> np.ndarray:
@@ -353,11 +370,11 @@ def energies(pair: deform.Pair, mr: MeshRegistration) -> dict:
     g1, g2 = mr.grids
     objective = Objective(g1, g2)
     nodes = np.stack(np.meshgrid(g1.r, g1.t, indexing="ij"), axis=-1).reshape(-1, 2)
-    face, bary, _ = deform.locate(mr.uv1, mr.first.faces, nodes)
-    material = deform.interpolate(disk_params(mr.first, pair.first_params), mr.first.faces, face, bary)
+    face, bary, _ = plane.locate(mr.uv1, mr.first.faces, nodes)
+    material = plane.interpolate(disk_params(mr.first, pair.first_params), mr.first.faces, face, bary)
     p2 = disk_params(mr.second, pair.second_params)
-    face, bary, inside = deform.locate(p2, mr.second.faces, material)
-    h_true = deform.interpolate(mr.uv2, mr.second.faces, face, bary)
+    face, bary, inside = plane.locate(p2, mr.second.faces, material)
+    h_true = plane.interpolate(mr.uv2, mr.second.faces, face, bary)
     if not inside.all():  # nodes off the second (holes): nearest known value
         h_true[~inside] = NearestNDInterpolator(nodes[inside], h_true[inside])(nodes[~inside])
     h_true = np.clip(h_true.reshape(len(g1.r), len(g1.t), 2), 0, 1)
@@ -381,13 +398,15 @@ def oracle_param(pair: deform.Pair, mr: MeshRegistration) -> Outcome:
     return Outcome(tried[k], float("nan"), f"symmetry {k} (oracle)")
 
 
-def diagnose(pair: deform.Pair, mr: MeshRegistration, rows: list) -> list[str]:
+def diagnose(pair: deform.Pair, mr: MeshRegistration, rows: list, options: Options) -> list[str]:
     """Rows telling where meshreg's error comes from (corners, the symmetry, the optimization) and lines of E."""
     c1, c2 = deform.material_corners(pair, mr)
+    found, _, _ = run_meshreg(pair, options.replace(bend_window=0.0))
+    rows += [row(pair, "meshreg, bend_window=0 (minimizes E)", found)]
     rows.append(row(pair, "param, best symmetry", oracle_param(pair, mr)))
-    found, baseline, _ = run_meshreg(pair, Options(symmetries=False))
+    found, baseline, _ = run_meshreg(pair, options.replace(symmetries=False))
     rows += [row(pair, "meshreg, symmetries=False", found), row(pair, "param, symmetries=False", baseline)]
-    found, baseline, run = run_meshreg(pair, Options(corners1=c1, corners2=c2))
+    found, baseline, run = run_meshreg(pair, options.replace(corners1=c1, corners2=c2))
     rows += [row(pair, "meshreg, true corners", found), row(pair, "param, true corners", baseline)]
     rows.append(row(pair, "param, true corners, best symmetry", oracle_param(pair, run)))
     return [
@@ -405,11 +424,11 @@ def fmt_energies(e: dict) -> str:
 
 def row(pair: deform.Pair, tool: str, outcome: Outcome) -> tuple:
     if outcome.points is None:
-        return (pair.name, tool, "", "", "", outcome.note)
+        return (pair.name, tool, "", "", "", "", outcome.note)
     err = pair.errors(outcome.points)
     med, p90 = np.percentile(err, [50, 90])
-    seconds = "" if np.isnan(outcome.seconds) else f"{outcome.seconds:.1f}"
-    return (pair.name, tool, f"{med:.4f}", f"{p90:.4f}", seconds, outcome.note)
+    seconds, cpu = ("" if np.isnan(x) else f"{x:.1f}" for x in (outcome.seconds, outcome.cpu))
+    return (pair.name, tool, f"{med:.4f}", f"{p90:.4f}", seconds, cpu, outcome.note)
 
 
 def machine_line() -> str:
@@ -423,6 +442,16 @@ def machine_line() -> str:
     return f"{today}, {cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
 
 
+def meshreg_options(settings: list[str]) -> Options:
+    """Options from NAME=VALUE strings (values as Python literals; ``advanced.NAME`` sets an Advanced field)."""
+    top, advanced = {}, {}
+    for setting in settings:
+        name, _, value = setting.partition("=")
+        target = advanced if name.startswith("advanced.") else top
+        target[name.removeprefix("advanced.")] = ast.literal_eval(value)
+    return Options(**top, advanced=Advanced(**advanced))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     builders_all = pair_builders(False)
@@ -431,9 +460,17 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="small meshes (about 5 min of CPU)")
     parser.add_argument("--diagnose", action="store_true", help="meshreg without symmetries, with true corners; E")
     parser.add_argument("--list", action="store_true", help="list the pairs and how they are made, then stop")
+    parser.add_argument(
+        "--option",
+        nargs="+",
+        default=[],
+        metavar="NAME=VALUE",
+        help="meshreg's options (fields of meshreg.Options; advanced.NAME for meshreg.Advanced), e.g. bend_window=0",
+    )
     args = parser.parse_args(argv)
+    options = meshreg_options(args.option)
     builders = pair_builders(args.quick)
-    print(f"# bench_peers{' --quick' if args.quick else ''}: {machine_line()}")
+    print(f"# bench_peers{' --quick' if args.quick else ''}{''.join(' ' + o for o in args.option)}: {machine_line()}")
     if args.list:
         for name in args.pairs:
             p = builders[name]()
@@ -452,24 +489,24 @@ def main(argv=None):
             f"largest edge-length ratio of the deformation {pair.info['edge_ratio']:.3g}"
         )
         if {"meshreg", "param"} & set(args.tools) or args.diagnose:
-            found, baseline, mr = run_meshreg(pair, Options())
+            found, baseline, mr = run_meshreg(pair, options)
             rows += [row(pair, t, o) for t, o in (("meshreg", found), ("param", baseline)) if t in args.tools]
             if args.diagnose and not pair.partial:
-                notes += diagnose(pair, mr, rows)
+                notes += diagnose(pair, mr, rows, options)
         fr = frames(pair) if peers else None
         for tool in peers:
-            t0, fr.borrowed = time.perf_counter(), 0.0
+            t0, c0, fr.borrowed = time.perf_counter(), time.process_time(), np.zeros(2)
             try:
                 moved = PEERS[tool][0](fr)
-                seconds = time.perf_counter() - t0 + fr.borrowed
-                outcome = Outcome(fr.to_first(moved), seconds)
+                seconds = time.perf_counter() - t0 + fr.borrowed[0]
+                outcome = Outcome(fr.to_first(moved), seconds, cpu=time.process_time() - c0 + fr.borrowed[1])
             except Exception as err:  # a peer failing on a pair is a result, not a crash of the benchmark
                 outcome = Outcome(None, time.perf_counter() - t0, f"failed: {type(err).__name__}: {err}"[:100])
             rows.append(row(pair, tool, outcome))
         print(f"{name} done", file=sys.stderr, flush=True)
     print()
-    print("| pair | tool | median | p90 | seconds | note |")
-    print("|---|---|---|---|---|---|")
+    print("| pair | tool | median | p90 | seconds | CPU s | note |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
         print("| " + " | ".join(r) + " |")
     print()

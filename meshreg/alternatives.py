@@ -95,6 +95,7 @@ def find_alternatives(
     residual: Residual,
     options: Options,
     log: Log,
+    refine_margin: float = np.inf,
 ) -> list[Alternative]:
     """The correspondences as good as the chosen one that differ from it by a symmetry of either surface.
 
@@ -114,6 +115,9 @@ def find_alternatives(
     options : Options
     log : Log
         Progress reports of the refinements (stage "alternatives").
+    refine_margin : float
+        A twin that is not equally good as it stands is refined (the refinement levels, on E) and judged again,
+        unless its residual exceeds the chosen one's by more than this (area-1 length; default: always refined).
 
     Returns
     -------
@@ -134,6 +138,8 @@ def find_alternatives(
         if twin_residual.mirrored or _listed(found, k, rotation):
             continue
         if not equally_good(energy, twin_residual.plus, chosen.energy, residual.plus, options):
+            if twin_residual.plus > residual.plus + refine_margin:
+                continue
             start = symmetry_map(inverse_symmetry(k), image)  # orientation preserving on the copy under k
             rotation, energy, twin_residual = _refined(
                 first, apply_symmetry(second, k), area, rotation, start, options, log

@@ -112,7 +112,7 @@ FLAGS: tuple[Flag, ...] = (
     Flag(
         "--corners1",
         "corners1",
-        "corner vertex ids of the first mesh's boundary",
+        "corner vertex ids of the first mesh's boundary, in order around it (the first becomes (0, 0))",
         int,
         nargs=4,
         metavar="ID",
@@ -121,7 +121,7 @@ FLAGS: tuple[Flag, ...] = (
     Flag(
         "--corners2",
         "corners2",
-        "corner vertex ids of the second mesh's boundary",
+        "corner vertex ids of the second mesh's boundary, in order around it (matched with --corners1)",
         int,
         nargs=4,
         metavar="ID",
@@ -135,6 +135,15 @@ FLAGS: tuple[Flag, ...] = (
         metavar="K",
         group="meshes",
     ),
+    Flag(
+        "--bend-window",
+        "bend_window",
+        "two meshes, mode auto: width (side lengths of the square) of the windows in which E_w lets the surface "
+        "bend at no cost; 0 = minimize E itself (default 0.05)",
+        float,
+        metavar="W",
+        group="bending",
+    ),
 )
 
 
@@ -142,7 +151,7 @@ def _dest(row: Flag) -> str:
     return "opt_" + row.field.replace(".", "__")
 
 
-def add_flags(parser, groups=("registration", "meshes", "corners")) -> None:
+def add_flags(parser, groups=("registration", "meshes", "corners", "bending")) -> None:
     """Add the flags of :data:`FLAGS` in ``groups`` to an argparse parser (defaults left to :class:`Options`)."""
     sections = {}
     for row in FLAGS:

@@ -105,6 +105,19 @@ class Advanced:
         ``rel_tol`` of the refinement levels. Default 1e-2: on the paper's different-shape pairs the levels
         otherwise spend two thirds of their time on 0.2% steps; same-shape pairs, whose E falls by orders of
         magnitude, are not affected.
+    choice_window : float
+        Meshes with ``Options.bend_window`` > 0: width (side lengths of the square) of the windows of E_w that
+        ranks the symmetries of the square and the corner placements of round boundaries
+        (:mod:`meshreg.bending`). Wider windows see larger relief (more telling) but charge more of the bending.
+        Default 0.1: on the benchmark's pairs (docs/bending.md) the right symmetry's E_w is below the next one's by
+        a factor of 1.23 (fold) to 31 (remeshed sheet); with 0.2 the fold's factor is 1.09.
+    refine_triangles : float
+        Meshes with ``Options.bend_window`` > 0: the refinement levels run only at scales (B-spline knot
+        spacing; grid spacing for the node level) of at least this many triangles (the mean of both meshes'
+        median edge lengths on the square). Finer, h fits the difference between two triangulations of one
+        surface rather than the correspondence. Default 6: sheets of 2500 vertices are not refined (refining
+        raised their error by 10 to 40%), a dense face scan (15000 and 47000 vertices) is refined to B-spline
+        knots 0.048 apart (its error fell from 0.005 to 0.002); docs/bending.md.
     ambiguity : float
         Mode "auto": another correspondence counts as equally good (``result.alternatives``) when its distance
         sqrt(E) and its coordinate residual (both lengths on area-1 surfaces) exceed the chosen one's by at most
@@ -130,6 +143,8 @@ class Advanced:
     refine_iterations: int = 10
     fine_iterations: int = 5
     refine_rel_tol: float = 1e-2
+    choice_window: float = 0.1
+    refine_triangles: float = 6.0
     ambiguity: float = 0.01
 
     def __post_init__(self):
@@ -156,6 +171,8 @@ class Advanced:
         ):
             _number(name, getattr(self, name), 0.0, math.inf)
         _number("step_fraction", self.step_fraction, 0.0, 1.0, low_open=True)
+        _number("choice_window", self.choice_window, 0.0, 1.0, low_open=True)
+        _number("refine_triangles", self.refine_triangles, 0.0, math.inf)
 
     def steps(self, basis: int, **changes) -> StepParams:
         """The :class:`StepParams` of a descent round in the basis KL = ``basis`` (``changes`` override fields)."""
@@ -215,10 +232,21 @@ class Options:
     cleanup : bool
         Repair meshes (holes, pieces, pinched vertices, ears) instead of refusing them. Default True.
     corners1, corners2 : tuple of 4 int or None
-        Corner vertex ids of each mesh's boundary (ids in the mesh as given). Default: chosen.
+        Corner vertex ids of each mesh's boundary (ids in the mesh as given), in their order around the boundary
+        (either way round): the first becomes (0, 0) of the square, and given for both meshes, corner k of one
+        is matched with corner k of the other. Default: chosen (the boundary's four clear turns within the
+        surface, else a search; see :mod:`meshreg.mesh.corners`).
     corner_search : int
         Trial corner placements of the second mesh when the boundaries have no four clear corners; 0 turns
         the search off. Default 8.
+    bend_window : float
+        Meshes in mode "auto": the correspondence starts from the two maps to the square (which bending does not
+        change) and descends E_w, E with a rotation of its own for every window of this width (side lengths of
+        the square): bending over longer lengths is not charged, so the descent does not slide a bent surface's
+        correspondence (:mod:`meshreg.bending`, docs/bending.md). Smaller: sharper creases kept (a fold), less
+        of the relief's long-range shape used (a stretch). 0 minimizes E itself, as for grids (the paper's
+        method; the registration then also runs the DP stage and the refinement levels). Default 0.05. The
+        reported E is E itself either way.
     force : bool
         Lift the limits of :mod:`meshreg.limits` on what a run may cost (grid nodes, the DP window's time, the
         corner search, worker processes) knowingly. Default False.
@@ -245,6 +273,7 @@ class Options:
     corners1: tuple[int, int, int, int] | None = None
     corners2: tuple[int, int, int, int] | None = None
     corner_search: int = 8
+    bend_window: float = 0.05
     force: bool = False
     advanced: Advanced = field(default_factory=Advanced)
 
@@ -265,6 +294,7 @@ class Options:
         _integer("antialias", self.antialias, 1, 16)
         _integer("resolution", self.resolution, 3, 100_000)
         _integer("corner_search", self.corner_search, 0, 1000)
+        _number("bend_window", self.bend_window, 0.0, 1.0)
         smoothing = tuple(self.smoothing)
         if not all(isinstance(s, (int, float)) and math.isfinite(s) and 0 < s <= 1 for s in smoothing):
             raise InputError(f"smoothing must be standard deviations in (0, 1] (side lengths), got {smoothing}")

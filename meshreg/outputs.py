@@ -197,6 +197,7 @@ def _registration_figure(result: Registration, first, second, path: Path, title:
         path,
         title=f"{title}, residual = {result.residual:.3g}",
         stages=result.energy_stages,
+        **({"minimized": "E_w (E with local rotations)"} if "bend_energy" in result.params else {}),
         notes=result.correspondence_notes(),
     )
 

@@ -78,6 +78,7 @@ def register(
     corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
     corner_search: int = DEFAULTS.corner_search,
+    bend_window: float = DEFAULTS.bend_window,
     force: bool = DEFAULTS.force,
     advanced: Advanced | None = None,
     callback: Progress | None = None,
@@ -97,6 +98,9 @@ def register(
         :data:`meshreg.search.SQUARE_SYMMETRIES`, as in ``result.symmetry`` and ``result.alternatives``).
     resolution, weights, antialias, cleanup, corners1, corners2, corner_search
         How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
+    bend_window
+        Meshes in mode "auto": windows within which E_w lets the surface bend (default 0.05; 0: minimize E
+        itself); see :mod:`meshreg.bending`.
     force : bool
         Lift the limits on grid size, DP window, basis and corner search of :mod:`meshreg.limits`.
     advanced : Advanced, optional
@@ -145,6 +149,7 @@ def register(
         corners1=corners1,
         corners2=corners2,
         corner_search=corner_search,
+        bend_window=bend_window,
         force=force,
         advanced=Advanced() if advanced is None else advanced,
     )

@@ -218,10 +218,13 @@ class Descent:
     options : Options
     work, nodes : Objective, (ndarray, ndarray)
         E on the work grid and its nodes' indices in the full grid (:func:`work_objective`).
+    finest : float
+        The refinement levels whose spacing (of the B-spline knots; of the full grid's nodes) is below this
+        (side lengths of the square) are not run. Default 0: all of them.
     """
 
-    def __init__(self, objective: Objective, options: Options, work: Objective, nodes: tuple):
-        self.objective, self.options = objective, options
+    def __init__(self, objective: Objective, options: Options, work: Objective, nodes: tuple, finest: float = 0.0):
+        self.objective, self.options, self.finest = objective, options, finest
         self.work, self.nodes = work, nodes
         self.solver = descend if options.solver == "gradient" else gauss_newton
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
@@ -262,9 +265,12 @@ class Descent:
         levels = []
         if refine:
             levels = [
-                (work, bspline_basis(k, work.r, work.t), False) for k in REFINE_KNOTS if k < min(work.first.shape) // 2
+                (work, bspline_basis(k, work.r, work.t), False)
+                for k in REFINE_KNOTS
+                if k < min(work.first.shape) // 2 and 1.0 / (k - 3) >= self.finest
             ]
-            levels.append((objective, None, True))
+            if min(np.diff(objective.r).max(), np.diff(objective.t).max()) >= self.finest:
+                levels.append((objective, None, True))
         source = work
         for target, fields, additive in levels:
             if target is not source:
@@ -322,11 +328,12 @@ def gd_paths(options: Options) -> list[dict]:
     return paths
 
 
-def work_objective(objective: Objective, first: GridSurface, second: GridSurface, second_area: float):
+def work_objective(objective: Objective, first: GridSurface, second: GridSurface, second_area: float, make=Objective):
     """E on every f-th node of the first grid (at most COARSE_NODES per axis), and the nodes' indices.
 
     ``objective`` is E on the full grid of ``first`` and ``second``; it is returned itself when the full grid
-    is small enough.
+    is small enough. ``make(first, second, second_area)`` builds the work grid's objective (default
+    :class:`~meshreg.objective.Objective`).
     """
     m, n = objective.first.shape
     ir = np.unique(np.r_[np.arange(0, m, -(-(m - 1) // (COARSE_NODES - 1))), m - 1])
@@ -334,4 +341,4 @@ def work_objective(objective: Objective, first: GridSurface, second: GridSurface
     if len(ir) == m and len(it) == n:
         return objective, (ir, it)
     coarse = GridSurface(first.points[np.ix_(ir, it)], first.r[ir], first.t[it])
-    return Objective(coarse, second, second_area), (ir, it)
+    return make(coarse, second, second_area), (ir, it)

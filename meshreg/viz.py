@@ -31,10 +31,11 @@ def plot_registration(
     path,
     title: str = "",
     stages=(),
+    minimized: str = "E (squared elastic distance)",
     notes=(),
 ) -> Path:
     """Write a PNG: R c1 and c2 o h overlaid (boundaries and iso-lines, each centred), where on the square they
-    differ, and E per accepted step with the stages marked.
+    differ, and E (or what was minimized) per accepted step with the stages marked.
 
     Parameters
     ----------
@@ -50,6 +51,8 @@ def plot_registration(
     stages : sequence of str, optional
         The stage of each entry of ``history`` (:attr:`meshreg.Registration.energy_stages`); stage changes are
         marked on the energy curve.
+    minimized : str
+        What ``history`` holds, for the curve's axis (meshes in the bending path: E_w, :mod:`meshreg.bending`).
     notes : sequence of str, optional
         Lines written under the panels (:meth:`meshreg.Registration.correspondence_notes`: an ambiguous or
         mirrored correspondence).
@@ -81,7 +84,7 @@ def plot_registration(
             curve.axvline(k, color="tab:blue", lw=0.8, alpha=0.6)
             curve.annotate(level, (k, energies.max()), rotation=90, va="top", ha="right", fontsize=8, color="tab:blue")
     curve.set_xlabel("accepted step")
-    curve.set_ylabel("E (squared elastic distance)")
+    curve.set_ylabel(minimized)
     curve.set_title(f"energy: {energies[0]:.3g} -> {energies[-1]:.3g}", fontsize=10)
     curve.grid(True, which="both", alpha=0.3)
     fig.tight_layout()

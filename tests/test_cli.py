@@ -238,6 +238,10 @@ MESH_FLAG_CASES = {
     "--start-basis": (["--mode", "gd", "--start-basis", "2"], lambda r: r.params["start_basis"] == 2),
     "--resolution": (["--resolution", "11"], lambda r: r.h.shape == (11, 11, 2) and r.params["resolution"] == 11),
     "--weights": (["--weights", "cotangent"], lambda r: r.params["weights"] == "cotangent"),
+    "--bend-window": (
+        ["--bend-window", "0"],
+        lambda r: r.params["bend_window"] == 0 and "bend_energy" not in r.params,
+    ),
     "--antialias": (["--antialias", "1"], lambda r: r.params["antialias"] == 1),
     "--no-cleanup": (["--no-cleanup"], lambda r: r.params["cleanup"] is False),
     "--corner-search": (["--corner-search", "2"], lambda r: r.params["corner_search"] == 2),
@@ -269,3 +273,19 @@ def test_each_flag_reaches_the_mesh_result(mesh_files, tmp_path, flag):
     assert main(["register", str(d / "a.ply"), str(d / "b.ply"), "-o", str(out), "-q", *args]) == 0
     result = Registration.load(out / "result.npz")
     assert check(result), (flag, result.params)
+
+
+def test_every_key_of_a_mesh_result_is_documented(mesh_files, tmp_path):
+    """docs/outputs.md names every array of result.npz, every key of its params and timings, and every file the
+    command writes (a key added without its documentation fails here)."""
+    import json
+    from pathlib import Path
+
+    d, _, _ = mesh_files
+    out = tmp_path / "out"
+    assert main(["register", str(d / "a.ply"), str(d / "b.ply"), "-o", str(out), "-q", "--resolution", "13"]) == 0
+    documented = set(re.findall(r"`([A-Za-z_0-9.]+)`", (Path(__file__).parents[1] / "docs" / "outputs.md").read_text()))
+    with np.load(out / "result.npz") as data:
+        keys = set(data.files) | set(json.loads(str(data["params"]))) | set(json.loads(str(data["timings"])))
+    files = {p.name for p in out.rglob("*") if p.is_file()}
+    assert keys | files <= documented, sorted((keys | files) - documented)

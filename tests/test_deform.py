@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial import Delaunay
 
 from meshreg.errors import InputError
-from meshreg.mesh import deform
+from meshreg.mesh import deform, plane
 from meshreg.mesh.topology import triangle_areas
 
 
@@ -30,12 +30,12 @@ def test_locate_agrees_with_delaunay_barycentrics():
     pts = rng.random((300, 2))
     tri = Delaunay(pts)
     q = 0.05 + 0.9 * rng.random((500, 2))
-    face, bary, inside = deform.locate(pts, tri.simplices, q)
+    face, bary, inside = plane.locate(pts, tri.simplices, q)
     hull = tri.find_simplex(q) >= 0
     assert np.all(inside == hull) and 0 < np.sum(~hull) < 10
-    assert np.allclose(deform.interpolate(pts, tri.simplices, face, bary)[hull], q[hull])
+    assert np.allclose(plane.interpolate(pts, tri.simplices, face, bary)[hull], q[hull])
     assert np.all(face[hull] == tri.find_simplex(q[hull]))
-    _, bary, inside = deform.locate(pts, tri.simplices, np.array([[2.0, 2.0]]))
+    _, bary, inside = plane.locate(pts, tri.simplices, np.array([[2.0, 2.0]]))
     assert not inside[0] and np.all(bary >= 0) and np.isclose(bary.sum(), 1)
 
 

@@ -31,3 +31,17 @@ def test_python_examples_run_as_written(page, tmp_path, monkeypatch):
     env = {**os.environ, "MPLBACKEND": "Agg"}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, f"{page.name}:\n{proc.stderr[-3000:]}"
+
+
+def test_readme_synopsis_names_every_register_flag():
+    """The README's command-line synopsis shows every flag of `meshreg register` (a flag added without it fails)."""
+    from meshreg.cli import build_parser
+
+    register = next(
+        action.choices["register"] for action in build_parser()._actions if getattr(action, "choices", None)
+    )
+    readme = (ROOT / "README.md").read_text()
+    synopsis = readme[readme.index("meshreg register FIRST SECOND") : readme.index("meshreg view OUT")]
+    shown = set(re.findall(r"(?<![\w-])(--?[a-z][\w-]*)", synopsis))
+    missing = [a.option_strings for a in register._actions if a.option_strings and not set(a.option_strings) & shown]
+    assert missing == [["-h", "--help"]], missing

@@ -3,6 +3,7 @@
 import argparse
 import dataclasses
 import inspect
+from pathlib import Path
 
 import pytest
 
@@ -85,6 +86,8 @@ def test_flags_parse_into_options_and_defaults_come_from_options():
         ({"corners1": (1, 2, 3)}, "corners1"),
         ({"weights": "uniform"}, "unknown weights"),
         ({"window": 2.5}, "window"),
+        ({"bend_window": -0.1}, "bend_window"),
+        ({"bend_window": 2.0}, "bend_window"),
     ],
 )
 def test_bad_options_name_the_field_and_the_valid_range(changes, message):
@@ -101,6 +104,8 @@ def test_bad_options_name_the_field_and_the_valid_range(changes, message):
         {"step_fraction": 100.0},
         {"rel_tol": float("nan")},
         {"max_rounds": -1},
+        {"choice_window": 0.0},
+        {"refine_triangles": -1.0},
         {"ambiguity": -0.5},
     ],
 )
@@ -123,3 +128,10 @@ def test_register_stays_the_function_once_the_pipeline_module_is_loaded():
     import meshreg.mesh.correspond  # noqa: F401  (imports meshreg.pipeline, the module behind meshreg.register)
 
     assert callable(meshreg.register) and meshreg.register.__name__ == "register"
+
+
+def test_every_option_is_in_the_parameter_tables():
+    """docs/method.md's tables name every field of Options and Advanced (a field added without them fails)."""
+    doc = (Path(__file__).parents[1] / "docs" / "method.md").read_text()
+    missing = [f.name for c in (Options, Advanced) for f in dataclasses.fields(c) if f"| `{f.name}`" not in doc]
+    assert not missing, missing

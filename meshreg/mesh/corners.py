@@ -1,23 +1,27 @@
 """Corners of a disk mesh's boundary on the square, and the search for the second mesh's corner placement.
 
-A boundary with four clear turns (a scanned sheet, a terrain tile) has natural corners. A smooth boundary (a
-round crop of a scan) has none, and two meshes of one surface would get their corners at different places,
-which no reparametrization that keeps the corners can undo: :func:`search_corners` tries placements of the
-second mesh's corners and ranks them by a coarse DP.
+A boundary with four clear turns (a scanned sheet, a terrain tile) has natural corners: turns within the surface,
+which bending does not change. A smooth boundary (a round crop of a scan) has none, and two meshes of one surface
+would get their corners at different places, which no reparametrization that keeps the corners can undo:
+:func:`search_corners` tries placements of the second mesh's corners and ranks them by E_w at the parametrizations'
+own correspondence (:func:`meshreg.bending.symmetry_energies`: local rotations absorb bending).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..bending import CHOICE_GRID, symmetry_energies, tried_symmetries
 from ..grid import GridSurface
 from ..options import Options
-from ..search import best_start
-from .harmonic import HarmonicMap, arc_fraction, choose_corners, has_sharp_corners, quarter_corners
-from .resample import DEFAULT_ANTIALIAS, resample_grid
+from ..search import SQUARE_SYMMETRIES, best_start
+from .harmonic import HarmonicMap, arc_fraction, choose_corners, given_corners, has_sharp_corners, quarter_corners
+from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
 
-CORNER_SEARCH_GRID = 21  # coarse grid on which the trial placements are ranked
+CORNER_SEARCH_GRID = 21  # coarse grid on which :func:`best_placement` ranks the trial placements (by coarse DP)
+PLACEMENT_HALVINGS = 4  # halving steps of the pair's corner search around the best trial placement
+SWAP = SQUARE_SYMMETRIES.index((True, False, False))  # (u, v) -> (v, u): corners given each way round
 
 
 def placement_starts(disk: DiskMesh, trials: int) -> np.ndarray:
@@ -50,52 +54,72 @@ def best_placement(first: GridSurface, placements: list[GridSurface], keep_orien
     return int(np.argmin(energies))
 
 
-def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options) -> tuple[list, list | None]:
-    """Corner loop positions (4,) of both meshes of a pair: given ids (``options.corners1/2``), four clear
-    turns, or the first's own placement and a search of the second's (:func:`search_corners`) when the
-    boundaries are round. Returns the positions and the placements tried (None without a search)."""
+def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options):
+    """Corner loop positions (4,) of both meshes of a pair: given ids (``options.corners1/2``, the first of each
+    at (0, 0)), four clear turns, or, when a boundary is round, the first's corners (its clear turns, else its
+    own placement) and a search of the second's (:func:`search_corners`).
+
+    Returns
+    -------
+    positions : list of two ndarray (4,)
+    tried : list or None
+        The (start, rank) pairs of the second's placements tried (None without a search).
+    symmetry : int or None
+        With corners given for both meshes, the symmetry of the square that matches corner k of the first with
+        corner k of the second: the identity, or the diagonal one when one mesh's corners were given along its
+        boundary and the other's against it (:func:`~meshreg.mesh.harmonic.given_corners`); else None.
+    """
     given = (options.corners1, options.corners2)
-    pos = [choose_corners(d, None if c is None else d.input_ids(c)) for d, c in zip(disks, given, strict=True)]
+    pos, backwards = [], []
+    for disk, ids in zip(disks, given, strict=True):
+        if ids is None:
+            pos.append(choose_corners(disk))
+            backwards.append(None)
+        else:
+            corners, reverse = given_corners(disk, disk.input_ids(ids))
+            pos.append(corners)
+            backwards.append(reverse)
+    symmetry = None if None in backwards else (SWAP if backwards[0] != backwards[1] else 0)
     search = options.corner_search > 0 and given == (None, None) and not all(has_sharp_corners(d) for d in disks)
     if not search:
-        return pos, None
-    pos[0] = placement_corners(disks[0], 1)[0]
-    pos[1], tried = search_corners(
-        maps[0], pos[0], maps[1], options.corner_search, options.keep_orientation, options.antialias
-    )
-    return pos, tried
+        return pos, None, symmetry
+    if not has_sharp_corners(disks[0]):
+        pos[0] = placement_corners(disks[0], 1)[0]
+    pos[1], tried = search_corners(maps[0], pos[0], maps[1], options)
+    return pos, tried, symmetry
 
 
 def search_corners(
-    first: HarmonicMap,
-    corners1: np.ndarray,
-    second: HarmonicMap,
-    trials: int = 8,
-    keep_orientation: bool = False,
-    antialias: int = DEFAULT_ANTIALIAS,
+    first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, options: Options
 ) -> tuple[np.ndarray, list]:
-    """Corners of the second mesh that best match the first's: the ``trials`` placements of
-    :func:`placement_starts`, then one halving step around the best, ranked by :func:`placement_energy`
-    on 21 x 21 grids (resampled with ``antialias``, see :func:`~meshreg.mesh.resample.resample_grid`).
+    """Corners of the second mesh that best match the first's: the ``options.corner_search`` placements of
+    :func:`placement_starts`, then PLACEMENT_HALVINGS halving steps around the best, each ranked by the lowest
+    E_w over the symmetries of the square at h = the symmetry, mirrored matches aside
+    (:func:`meshreg.bending.symmetry_energies`, windows
+    of ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids).
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
-    different places, and no reparametrization that keeps the corners can undo that. This finds them.
+    different places, and no reparametrization that keeps the corners can undo that. This finds them; E_w
+    compares normals under rotations that vary over the square, so a bent copy is placed like an unbent one.
 
-    Returns the second's corner loop positions (4,) and the (start, energy) pairs tried.
+    Returns the second's corner loop positions (4,) and the (start, rank) pairs tried.
     """
-    n = CORNER_SEARCH_GRID
+    n, trials = CHOICE_GRID, options.corner_search
+    window, symmetries = options.advanced.choice_window, tried_symmetries(options)
     disk1, disk2 = first.disk, second.disk
-    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n, antialias)
+    aa = options.antialias
+    coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n, aa)
 
-    def energy(start):
-        uv = second(quarter_corners(disk2, start))[0]
-        grid = resample_grid(disk2.vertices, disk2.faces, uv, n, n, antialias)
-        return placement_energy(coarse1, grid, keep_orientation)
+    def rank(start):
+        grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n, aa)
+        ranked = symmetry_energies(coarse1, grid, window, symmetries)
+        return next((e for _, e, mirrored in ranked if not mirrored), ranked[0][1])
 
-    starts = placement_starts(disk2, trials)
-    tried = [(start, energy(start)) for start in starts]
-    best = min(tried, key=lambda x: x[1])[0]
-    tried += [(best + d, energy(best + d)) for d in (-0.125 / trials, 0.125 / trials)]
+    tried = [(float(start), rank(start)) for start in placement_starts(disk2, trials)]
+    step = 0.25 / trials
+    for _ in range(PLACEMENT_HALVINGS):
+        best, step = min(tried, key=lambda x: x[1])[0], step / 2
+        tried += [(best + d, rank(best + d)) for d in (-step, step)]
     best = min(tried, key=lambda x: x[1])[0]
     return quarter_corners(disk2, best % 1.0), tried
 

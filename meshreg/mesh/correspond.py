@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..bending import register_bending
 from ..correspondence import Side, inverse_uv
 from ..errors import InputError
 from ..options import Options
@@ -13,7 +14,7 @@ from ..pipeline import register_grids
 from ..result import Registration
 from ..schedule import Progress
 from .corners import corner_positions
-from .harmonic import HarmonicMap
+from .harmonic import HarmonicMap, edge_length
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
 
@@ -61,8 +62,11 @@ def register_meshes(
         (m, 3)); see :func:`meshreg.surfaces.as_input`.
     options : Options, optional
         Mesh preparation (``resolution``, ``antialias``, ``cleanup``, ``weights``, ``corners1``, ``corners2``,
-        ``corner_search``) and registration settings (default mode "auto", which tries the 8 symmetries of
-        the square: which corner of the boundary became (0, 0) does not matter).
+        ``corner_search``) and registration settings. In mode "auto" (the default) with ``bend_window`` > 0
+        (default 0.05) the correspondence starts from the two maps to the square and descends E_w, which lets
+        the surface bend (:func:`meshreg.bending.register_bending`); the symmetry of the square (which corner
+        of the boundary became (0, 0)) is chosen, or fixed by corners given for both meshes. Other modes, or
+        ``bend_window=0``, minimize E (:func:`meshreg.pipeline.register_grids`).
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
     names : (str, str)
@@ -85,7 +89,7 @@ def register_meshes(
             raise InputError(f"{mesh.name}: {err}") from None
         disks.append(disk)
         infos[name] = {"cleanup": disk.report}
-    positions, tried = corner_positions(disks, maps, options)
+    positions, tried, symmetry = corner_positions(disks, maps, options)
     if tried is not None:
         infos["second"]["corner_search"] = tried
     uvs = []
@@ -95,7 +99,13 @@ def register_meshes(
         infos[name].update(info)
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
-    result = register_grids(grids[0], grids[1], options, callback)
+    pinned = options.symmetry if symmetry is None else symmetry
+    if options.mode == "auto" and options.bend_window > 0:
+        edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])
+        finest = options.advanced.refine_triangles * edges
+        result = register_bending(grids[0], grids[1], options, callback, pinned, finest)
+    else:
+        result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
     sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=_json_ready(infos))
     return MeshRegistration(

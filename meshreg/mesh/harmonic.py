@@ -11,16 +11,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import InputError
+from .boundary import sharp_corners
 from .topology import DiskMesh, loop_segments, triangle_areas
-
-SHARP_TURN = np.pi / 3  # a boundary vertex turning by more than this counts as a clear corner
-
-
-def _turning(vertices, loop):
-    p = vertices[loop]
-    a, b = p - np.roll(p, 1, axis=0), np.roll(p, -1, axis=0) - p
-    cos = np.sum(a * b, axis=1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
-    return np.arccos(np.clip(cos, -1, 1))
 
 
 def _principal_extremes(disk: DiskMesh) -> np.ndarray:
@@ -38,30 +30,54 @@ def _principal_extremes(disk: DiskMesh) -> np.ndarray:
 
 
 def has_sharp_corners(disk: DiskMesh) -> bool:
-    """Whether the boundary has exactly four clear corners (turns > 60 degrees)."""
-    return int(np.sum(_turning(disk.vertices, disk.boundary) > SHARP_TURN)) == 4
+    """Whether the boundary has exactly four clear corners (turns within the surface above 60 degrees)."""
+    return sharp_corners(disk.vertices, disk.faces, disk.boundary) is not None
+
+
+def given_corners(disk: DiskMesh, corners) -> tuple[np.ndarray, bool]:
+    """Loop positions (4,) of four corner vertex ids (of this disk) in the order of the loop from the first, which
+    becomes (0, 0) of the square, and whether they were given against the loop's direction.
+
+    Given along the loop (counterclockwise seen from the side the faces' normals point to), corner k becomes the
+    k-th corner of the square, (0, 0), (1, 0), (1, 1), (0, 1); given the other way round, the second and the fourth
+    trade places, which is the square's diagonal symmetry (u, v) -> (v, u): a pair with one mesh's corners given
+    each way is matched through it.
+
+    Raises
+    ------
+    InputError
+        Not four distinct boundary vertices, or not in their order around the boundary.
+    """
+    loop = disk.boundary
+    pos = np.array([int(np.flatnonzero(loop == c)[0]) if np.any(loop == c) else -1 for c in corners])
+    if len(pos) != 4 or pos.min() < 0 or len(set(pos.tolist())) < 4:
+        raise InputError("corners must be 4 distinct vertex ids on the boundary loop")
+    rel = (pos - pos[0]) % len(loop)
+    if np.all(np.diff(rel) > 0):
+        return pos, False
+    if np.all(np.diff(rel[1:]) < 0):
+        return pos[[0, 3, 2, 1]], True
+    raise InputError("corners must be given in their order around the boundary (either way round)")
 
 
 def choose_corners(disk: DiskMesh, corners=None, start: int | None = None) -> np.ndarray:
-    """Positions in the boundary loop of the four corners (increasing).
+    """Positions in the boundary loop of the four corners, in the loop's order from the one that becomes (0, 0).
 
-    In order of precedence: ``corners``, four vertex ids given by the user; quarter arc lengths from
-    ``start`` (a boundary vertex id) when it is given; the four sharpest turns when the boundary has
-    exactly four clear corners (turn > 60 degrees); else the boundary vertices reaching furthest along
-    the surface's two main principal directions (both ways), which do not depend on the pose, the
+    In order of precedence: ``corners``, four vertex ids given by the user (see :func:`given_corners`: the first
+    becomes (0, 0)); quarter arc lengths from ``start`` (a boundary vertex id) when it is given; the four sharpest
+    turns when the boundary has exactly four clear corners (turns within the surface, its geodesic curvature,
+    above 60 degrees: bending the surface does not change them); else the boundary vertices reaching furthest
+    along the surface's two main principal directions (both ways), which do not depend on the pose, the
     triangulation or where the loop starts; quarter arc lengths from there if two of those coincide.
     """
     loop = disk.boundary
     if corners is not None:
-        pos = [int(np.flatnonzero(loop == c)[0]) if np.any(loop == c) else -1 for c in corners]
-        if len(pos) != 4 or min(pos) < 0 or len(set(pos)) < 4:
-            raise InputError("corners must be 4 distinct vertex ids on the boundary loop")
-        return np.sort(pos)
+        return given_corners(disk, corners)[0]
     if len(loop) < 4:
         raise InputError("the boundary has fewer than 4 vertices: it cannot be mapped to a square")
     if start is None:
-        sharp = np.flatnonzero(_turning(disk.vertices, loop) > SHARP_TURN)
-        if len(sharp) == 4:
+        sharp = sharp_corners(disk.vertices, disk.faces, loop)
+        if sharp is not None:
             return sharp
         extremes = _principal_extremes(disk)
         if len(extremes) == 4:
@@ -130,6 +146,12 @@ def arc_fraction(disk: DiskMesh, position: int) -> float:
     """Arc-length fraction in [0, 1) of the boundary loop at loop position ``position``."""
     seg = loop_segments(disk.vertices, disk.boundary)
     return float(seg[:position].sum() / seg.sum())
+
+
+def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
+    """Median length of a mesh's edges on the square (its resolution there), for faces (m, 3) and uv (n, 2)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return float(np.median(np.linalg.norm(uv[e[:, 0]] - uv[e[:, 1]], axis=1)))
 
 
 def _factorize(a: sp.csc_matrix):

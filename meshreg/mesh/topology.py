@@ -11,6 +11,7 @@ from scipy.sparse.csgraph import breadth_first_order, connected_components
 from ..errors import InputError
 from ..files import MESH_SUFFIXES, existing_file
 from ..grid import check_scale, coordinates
+from .boundary import sharp_corners
 
 # a mesh whose vertices sit further from the origin than this many times its size has lost the digits of its
 # shape if it was stored in float32 (7 digits): its triangles collapse
@@ -136,7 +137,8 @@ def prepare_disk(
 
     Cleanup, always reported: drop degenerate (zero-area) triangles, keep the largest connected
     component, fill holes, drop boundary ears (triangles with two sides, hence all three corners, on the
-    boundary: they collapse under a convex map), drop unreferenced vertices.
+    boundary: they collapse under a convex map) except those at the four clear corners of a boundary that has
+    them, drop unreferenced vertices.
 
     Parameters
     ----------
@@ -182,7 +184,7 @@ def prepare_disk(
         v, f, added, rim = _fill_holes(v, f, loops)
         report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
     if cleanup:
-        f = _without_ears(f, report)
+        f = _without_ears(v, f, report)
     used = np.unique(f)
     original = used[used < n]
     if len(original) < n:
@@ -287,15 +289,28 @@ def _largest_component(f: np.ndarray, n: int, cleanup: bool, report: list) -> np
     return f[keep]
 
 
-def _without_ears(f: np.ndarray, report: list) -> np.ndarray:
+def _without_ears(v: np.ndarray, f: np.ndarray, report: list) -> np.ndarray:
     """Faces without boundary ears (two sides on the boundary), in one pass: peeling again would eat thin strips
-    triangle by triangle."""
+    triangle by triangle.
+
+    An ear collapses under a map onto a convex boundary when its three corners land on one side of the square, but
+    not when its apex (the vertex between its two boundary sides) is a corner of the square: so when the boundary
+    has exactly four clear corners (:func:`~meshreg.mesh.boundary.sharp_corners`, counted with the ears in place),
+    the ears at those corners are kept (a square sheet's corner triangles are ears)."""
     if len(f) <= 1:
         return f
     _, _, inverse, counts = _edges(f)
-    ears = (counts[inverse] == 1).reshape(3, -1).sum(axis=0) >= 2
+    on_boundary = (counts[inverse] == 1).reshape(3, -1).T  # (m, 3): side k runs from corner k to corner k + 1
+    ears = on_boundary.sum(axis=1) >= 2
     if not ears.any() or ears.all():
         return f
+    loops = _boundary_loops(f)
+    corners = sharp_corners(v, f, loops[0]) if len(loops) == 1 else None
+    if corners is not None:
+        apex = f[np.arange(len(f)), (np.argmax(on_boundary & np.roll(on_boundary, 1, axis=1), axis=1))]
+        ears &= ~np.isin(apex, np.asarray(loops[0])[corners])
+        if not ears.any():
+            return f
     report.append(f"removed {int(ears.sum())} boundary ears (triangles with two sides on the boundary)")
     return f[~ears]
 

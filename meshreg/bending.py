@@ -1,0 +1,209 @@
+"""Registration that keeps a bent surface's correspondence: the parametrizations' own match, improved by E_w.
+
+Two meshes of one material surface, one of them bent, get (nearly) the same harmonic map to the square when their
+corners are the same material points: the map is built from lengths and angles within the surface, which bending
+keeps. E, which compares normals after one rotation of the whole surface, charges the bending, and minimizing it
+slides the correspondence away from the right one (on a sheet rolled by 180 degrees, E of the true map is 0.69 and
+the minimum found 0.53). So for meshes (``Options.bend_window`` > 0, mode "auto"):
+
+1. the symmetry of the square (which corner of the second's square is (0, 0), and whether r and t swap) is chosen
+   by E_w (:mod:`meshreg.local_rotation`) at h = that symmetry, in windows of ``advanced.choice_window``, on
+   coarse grids: local rotations absorb the bending, the relief within a window decides;
+2. from h = the symmetry (the parametrizations' own correspondence), h descends on E_w with windows of
+   ``bend_window``, in the basis of the descent (KL = ``basis``), then in the refinement levels that are not
+   finer than ``finest``: for meshes, ``advanced.refine_triangles`` triangles, since below a few triangles two
+   meshes of one surface are different piecewise-linear surfaces and a finer h fits their difference, not the
+   correspondence; several symmetries that rank within CHOICE_MARGIN of the best (at most ``max_starts``) are
+   each descended and the lowest E_w wins;
+3. E itself is reported at the answer (at its best rotation), so that energies stay comparable with every other
+   registration; ``params["bend_energy"]`` holds E_w.
+
+No DP stage: the DP minimizes E and walks away from the parametrization on bends.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+
+from .alternatives import find_alternatives
+from .grid import GridSurface
+from .local_rotation import LocalObjective, local_energy
+from .objective import Objective
+from .options import Options
+from .residual import Residual
+from .result import Registration
+from .rotation import similarity
+from .schedule import Descent, Log, Progress, work_objective
+from .search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry, symmetry_map
+
+CHOICE_GRID = 41  # nodes per axis of the coarse grids on which symmetries and corner placements are ranked
+CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction of the best are descended too
+# a twin of the answer (a symmetry of either surface applied to it) is refined only when its residual as it stands
+# is within this of the answer's (area-1 length): measured 0.002-0.009 above on a four-fold symmetric sheet's
+# remeshed copy (true twins), 0.096 and more on the folded relief sheet (a flat square's symmetries, not the fold's)
+TWIN_MARGIN = 0.05
+WINDOW_CELLS = 4.0  # the descent's windows are at least this many grid cells wide (a rotation is fitted in each)
+
+
+def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
+    """The surface at area 1 on an n x n uniform grid (for ranking)."""
+    return surface.scaled().resampled(n, n)
+
+
+def symmetry_energies(first: GridSurface, second: GridSurface, window: float, tried) -> list[tuple[int, float, bool]]:
+    """(symmetry, E_w at h = that symmetry, whether that match is mirrored) for each symmetry of the square in
+    ``tried``, lowest E_w first. Both surfaces are ranked on :func:`coarse` grids with windows of ``window`` (side
+    lengths); a match is mirrored when the first, rotated by Kabsch, lies on the point reflection of the second
+    (:mod:`meshreg.residual`): E_w, like E, cannot tell them apart."""
+    a, b = coarse(first), coarse(second)
+    out = []
+    for k in tried:
+        copy = apply_symmetry(b, k)
+        plain = Objective(a, copy, copy.area())
+        mirrored = plain.judge(plain.identity)[2].mirrored
+        out.append((k, local_energy(a.points, copy.points, a.r, a.t, window), mirrored))
+    return sorted(out, key=lambda x: x[1])
+
+
+def descent_window(first: GridSurface, bend_window: float) -> float:
+    """The descent's window: ``bend_window``, widened to WINDOW_CELLS cells of the first's grid (on a 41 x 41
+    grid a window of 2 cells absorbs the relief it should compare and the descent stalls)."""
+    cell = max(np.diff(first.r).max(), np.diff(first.t).max())
+    return float(max(bend_window, WINDOW_CELLS * cell))
+
+
+def tried_symmetries(options: Options) -> tuple[int, ...]:
+    """The symmetries of the square that mode "auto" tries: all 8, the 4 that keep orientation
+    (``keep_orientation``), or the identity alone (without ``search`` or ``symmetries``)."""
+    if not (options.search and options.symmetries):
+        return (0,)
+    return ORIENTATION_PRESERVING if options.keep_orientation else tuple(range(len(SQUARE_SYMMETRIES)))
+
+
+def register_bending(
+    first: GridSurface,
+    second: GridSurface,
+    options: Options,
+    callback: Progress | None = None,
+    symmetry: int | None = None,
+    finest: float = 0.0,
+) -> Registration:
+    """Register two grid surfaces (two meshes on their squares) from their parametrizations' own correspondence,
+    descending E_w (see the module's docstring).
+
+    Parameters
+    ----------
+    first, second : GridSurface
+    options : Options
+        ``bend_window`` (> 0), ``advanced.choice_window``, ``basis``, ``solver``, ``max_starts``, ``search``,
+        ``symmetries``, ``keep_orientation`` and the descent's numerics.
+    callback : callable, optional
+        ``callback(stage, iteration, E_w)`` after every accepted step (stage "gd").
+    symmetry : int, optional
+        The symmetry of the square to use (corners given on both meshes fix it); default: chosen.
+    finest : float
+        Refinement levels finer than this (side lengths of the square) are not run (see
+        :class:`~meshreg.schedule.Descent`): for meshes, ``advanced.refine_triangles`` times their typical edge
+        length on the square (:func:`meshreg.mesh.harmonic.edge_length`). Default 0: every level.
+
+    Returns
+    -------
+    Registration
+        ``energy`` is E at the answer (at its best rotation); ``energy_history`` holds E_w along the descent.
+    """
+    start = time.perf_counter()
+    timings: dict = {}
+    tic = time.perf_counter()
+    tried = (symmetry,) if symmetry is not None else tried_symmetries(options)
+    ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
+    fair = [(k, e, m) for k, e, m in ranked if not m] or ranked  # mirrored starts only when nothing else is left
+    best = fair[0][1]
+    starts = [k for k, e, _ in fair if e <= (1.0 + CHOICE_MARGIN) * best][: options.max_starts]
+    timings["search"] = time.perf_counter() - tic
+    area = second.area()
+    window = descent_window(first, options.bend_window)
+    runs = [_descend(first, second, area, k, window, options, finest, Log(callback, timings)) for k in starts]
+    chosen = min(runs, key=lambda run: (run.residual.mirrored, run.bend_energy))
+    k, plain = chosen.symmetry, chosen.objective
+    alternatives = []
+    if symmetry is None:
+        with Log(callback, timings).clock("alternatives"):
+            alternatives = find_alternatives(
+                first, second, area, k, chosen, chosen.residual, options, Log(callback), TWIN_MARGIN
+            )
+    h = symmetry_map(k, chosen.h)
+    timings["total"] = time.perf_counter() - start
+    params = _params(options, chosen, runs, ranked, window, first, second)
+    return Registration(
+        rotation=chosen.rotation,
+        h=h,
+        energy=chosen.energy,
+        energy_dp=float("nan"),
+        energy_history=np.array(chosen.log.energies),
+        r=plain.r,
+        t=plain.t,
+        mode=options.mode,
+        params=params,
+        timings=timings,
+        symmetry=k,
+        energy_stages=tuple(chosen.log.stages),
+        transform=similarity(chosen.rotation, first.points, second.at(h)),
+        residual=chosen.residual.plus,
+        residual_mirrored=chosen.residual.minus,
+        alternatives=[a.as_dict(chosen.rotation) for a in alternatives],
+    )
+
+
+def _params(options: Options, chosen, runs, ranked, window: float, first: GridSurface, second: GridSurface) -> dict:
+    """Every parameter of a bending registration and what its choice saw (``result.params``)."""
+    return {
+        **options.as_dict(),
+        "bend_energy": chosen.bend_energy,
+        "bend_window_used": window,
+        "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
+        "starts": [
+            {
+                "symmetry": run.symmetry,
+                "bend_energy": run.bend_energy,
+                "energy": run.energy,
+                "residual": run.residual.plus,
+                "chosen": run is chosen,
+            }
+            for run in runs
+        ],
+        "grid_first": list(first.shape),
+        "grid_second": list(second.shape),
+    }
+
+
+@dataclass
+class BentRun:
+    """One symmetry's descent of E_w: the answer on the symmetric copy's square, judged by E and the residual
+    (shaped like :class:`~meshreg.schedule.Candidate` for :func:`~meshreg.alternatives.find_alternatives`)."""
+
+    symmetry: int
+    objective: Objective  # E on the first and the second under ``symmetry``
+    rotation: np.ndarray
+    h: np.ndarray
+    energy: float
+    bend_energy: float
+    residual: Residual
+    log: Log
+
+
+def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
+    """E_w descended from h = the k-th symmetry of the square."""
+    copy = apply_symmetry(second, k)
+    make = partial(LocalObjective, window=window)
+    objective = make(first, copy, area)
+    work, nodes = work_objective(objective, first, copy, area, make=make)
+    drive = Descent(objective, options, work, nodes, finest)
+    rotation, h = drive.descend(np.eye(3), drive.restrict(objective.identity), [options.basis], log)
+    rotation, h = drive.polish(rotation, h, log)
+    plain = Objective(first, copy, area)
+    rotation, energy, residual = plain.judge(h)
+    return BentRun(k, plain, rotation, h, float(energy), float(objective.energy(rotation, h)), residual, log)

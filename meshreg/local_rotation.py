@@ -1,0 +1,148 @@
+"""E with rotations that vary over the square: the comparison of normals that bending does not change.
+
+E compares the shape functions of two surfaces after one rotation of the whole first surface. Bending a surface
+turns its normals by an amount that varies from place to place, so the true correspondence of a bent copy pays for
+the bending, and minimizing E slides the correspondence until normals that point the same way meet. Here each point
+x of the square gets its own rotation R(x), fitted to the normals within a Gaussian window of width ``window``
+around it (in side lengths of the square):
+
+    E_w(h, R) = sum_x w_x sum_y w_y K(x, y) |R(x) q1(y) - (q2, h)(y)|^2,
+    K(x, y) = g(x - y) / kappa(y),  g a Gaussian of standard deviation ``window``,  kappa(y) = sum_x w_x g(x - y),
+
+with w the cell weights dr dt (so that sum_x w_x K(x, y) = 1: every cell counts once, also near the sides). Bending
+that turns the normals smoothly over lengths above ``window`` costs (almost) nothing; the relief within a window,
+the distribution of area and the relief's shape still decide where each point goes. As ``window`` grows, E_w tends
+to E.
+
+For a given h, the best R(x) is the rotation of the polar decomposition of the windowed cross-covariance
+C(x) = sum_y K(x, y) w_y (q2, h)(y) q1(y)^T (Kabsch at every x), so E_w(h) = min_R E_w(h, R) is
+
+    E_w(h) = sum_y w_y (|q1(y)|^2 + |(q2, h)(y)|^2) - 2 sum_x w_x nu(C(x)),
+
+nu(C) = trace(R^T C) at the best rotation R (the singular values' sum, the last one signed). Its derivative in h
+(the best R does not move to first order) is that of ``sum_y w_y |M(y) q1(y) - (q2, h)(y)|^2`` with the averaged
+rotations M(y) = sum_x w_x K(x, y) R(x) held fixed, whose value differs from E_w(h) by a constant: so a step that
+lowers this fixed-target energy lowers E_w(h) too, and the Gauss-Newton solver runs on :class:`LocalObjective`
+unchanged (:meth:`LocalObjective.linearize` refreshes the target at every iteration).
+
+Pure numpy: the Gaussian is applied as two dense matrices over the cell centres (exact on non-uniform grids).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .objective import Objective
+from .srnf import shape_function
+
+TRUNCATE = 3.0  # the window's Gaussian is cut at this many standard deviations
+
+
+def gaussian_rows(centres: np.ndarray, window: float) -> np.ndarray:
+    """The Gaussian g of standard deviation ``window`` between cell centres (k,) of one axis: (k, k), cut at
+    TRUNCATE standard deviations."""
+    d = (centres[:, None] - centres[None, :]) / window
+    return np.where(np.abs(d) <= TRUNCATE, np.exp(-0.5 * d * d), 0.0)
+
+
+class Window:
+    """The windows of one grid: x -> sum_y g(x - y) a(y) over the cells, and kappa.
+
+    Parameters
+    ----------
+    r, t : ndarray (M,), (N,)
+        The grid's partitions.
+    window : float
+        Standard deviation of the Gaussian, in side lengths of the square (> 0).
+    """
+
+    def __init__(self, r: np.ndarray, t: np.ndarray, window: float):
+        self.weights = np.outer(np.diff(r), np.diff(t))
+        self.gr = gaussian_rows(0.5 * (r[1:] + r[:-1]), window)
+        self.gt = gaussian_rows(0.5 * (t[1:] + t[:-1]), window)
+        self.kappa = self.apply(self.weights)
+
+    def apply(self, field: np.ndarray) -> np.ndarray:
+        """sum_y g(x - y) field(y) for a field (M-1, N-1, ...) over the cells."""
+        m, n = field.shape[:2]
+        flat = (self.gr @ field.reshape(m, -1)).reshape(m, n, -1)  # along r, then along t
+        return np.swapaxes(np.swapaxes(flat, 1, 2) @ self.gt.T, 1, 2).reshape(field.shape)
+
+
+def polar_rotations(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations R (..., 3, 3) maximizing trace(R^T C) for matrices C (..., 3, 3), and the maxima nu (...,)."""
+    u, s, vt = np.linalg.svd(c)
+    d = np.sign(np.linalg.det(u @ vt))
+    d = np.where(d == 0, 1.0, d)
+    u[..., :, -1] *= d[..., None]
+    s[..., -1] *= d
+    return u @ vt, s.sum(axis=-1)
+
+
+def local_fit(q1: np.ndarray, q2: np.ndarray, win: Window) -> tuple[float, np.ndarray]:
+    """E_w(h) for shape functions q1 and (q2, h) (M-1, N-1, 3), and the target M q1 (M-1, N-1, 3) of its
+    fixed-target form (see the module's docstring)."""
+    w = win.weights
+    a = np.einsum("ija,ijb->ijab", q2, q1) * (w / win.kappa)[..., None, None]
+    rotations, nu = polar_rotations(win.apply(a))
+    energy = float(np.sum(w * (np.sum(q1 * q1, axis=-1) + np.sum(q2 * q2, axis=-1))) - 2.0 * np.sum(w * nu))
+    averaged = win.apply(rotations * w[..., None, None]) / win.kappa[..., None, None]
+    return max(energy, 0.0), np.einsum("ijab,ijb->ija", averaged, q1)
+
+
+def local_energy(first_points: np.ndarray, second_points: np.ndarray, r, t, window: float) -> float:
+    """E_w at h = identity of two surfaces sampled on one grid (points (M, N, 3), both at area 1)."""
+    win = Window(r, t, window)
+    return local_fit(shape_function(first_points, r, t), shape_function(second_points, r, t), win)[0]
+
+
+class LocalObjective(Objective):
+    """E_w(h) = min over rotation fields R of E_w(h, R) (see the module's docstring), in the interface of
+    :class:`~meshreg.objective.Objective`, so that the descent and refinement levels run on it unchanged.
+
+    The global rotation the solvers move is redundant here (the rotation field absorbs it): :meth:`energy`
+    ignores it and :meth:`rotation_jacobian` is zero.
+
+    Parameters
+    ----------
+    first, second, second_area
+        As for :class:`~meshreg.objective.Objective`.
+    window : float
+        Width of the windows, in side lengths of the square.
+    """
+
+    def __init__(self, first, second, second_area: float | None = None, *, window: float):
+        super().__init__(first, second, second_area)
+        self.window = window
+        self.shape_q1 = self.q1
+        self._win = Window(self.r, self.t, window)
+
+    def fit(self, h: np.ndarray) -> tuple[float, np.ndarray]:
+        """E_w(h) and the target M q1 of the fixed-target energy at h."""
+        return local_fit(self.shape_q1, self.q2(h), self._win)
+
+    def energy(self, rotation: np.ndarray, h: np.ndarray) -> float:
+        """E_w(h) (the rotation is absorbed by the rotation field)."""
+        return self.fit(h)[0]
+
+    def _targeted(self, h: np.ndarray):
+        self.q1 = self.fit(h)[1]
+        return np.eye(3)
+
+    def best_rotation_covariance(self, h: np.ndarray) -> np.ndarray:
+        """A covariance whose Kabsch rotation is the identity (the rotation field needs no global rotation)."""
+        return np.eye(3)
+
+    def gradient(self, rotation: np.ndarray, h: np.ndarray, dh_dr: np.ndarray, dh_dt: np.ndarray):
+        """E_w(h) and its derivative density along fields composed on h (at the best rotation field)."""
+        identity = self._targeted(h)
+        _, grad = super().gradient(identity, h, dh_dr, dh_dt)
+        return self.fit(h)[0], grad
+
+    def linearize(self, rotation: np.ndarray, h: np.ndarray, dh_dr: np.ndarray, dh_dt: np.ndarray):
+        """Residuals of the fixed-target energy at h (target refreshed from h) and their Jacobian."""
+        return super().linearize(self._targeted(h), h, dh_dr, dh_dt)
+
+    def rotation_jacobian(self, rotation: np.ndarray) -> np.ndarray:
+        """Zero: a global rotation does not change E_w."""
+        return np.zeros((3 * self.q1.shape[0] * self.q1.shape[1], 3))

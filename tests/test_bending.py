@@ -1,0 +1,189 @@
+"""What bending does not change, and the registration built on it (issue 14): the turning of a boundary within the
+surface, corner ears, corners given in order, E_w (E with rotations that vary over the square) and its descent,
+each against a known answer."""
+
+import numpy as np
+import pytest
+
+from meshreg import Advanced, Options
+from meshreg.bending import register_bending
+from meshreg.errors import InputError
+from meshreg.grid import GridSurface
+from meshreg.local_rotation import LocalObjective, local_energy, polar_rotations
+from meshreg.mesh import deform
+from meshreg.mesh.boundary import geodesic_turning, sharp_corners
+from meshreg.mesh.corners import SWAP
+from meshreg.mesh.correspond import register_meshes
+from meshreg.mesh.harmonic import HarmonicMap, choose_corners, given_corners
+from meshreg.mesh.samples import random_disk_mesh
+from meshreg.mesh.topology import prepare_disk
+from meshreg.objective import Objective
+from meshreg.pipeline import register_grids
+from meshreg.rotation import kabsch
+
+
+def flat(u, v):
+    return np.c_[u, v, 0 * u]
+
+
+def loop_turning_3d(vertices, loop):
+    p = vertices[loop]
+    a, b = p - np.roll(p, 1, axis=0), np.roll(p, -1, axis=0) - p
+    cos = np.sum(a * b, 1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    return np.arccos(np.clip(cos, -1, 1))
+
+
+def test_turning_within_the_surface_survives_a_roll_and_the_turning_in_space_does_not():
+    v, f, params = random_disk_mesh(flat, 400, seed=0, border=60)
+    disk = prepare_disk(v, f)
+    rolled = deform.bend(disk.vertices - disk.vertices.min(axis=0), np.radians(180.0))  # unit square, x across
+    before = geodesic_turning(disk.vertices, disk.faces, disk.boundary)
+    after = geodesic_turning(rolled, disk.faces, disk.boundary)
+    assert np.abs(after - before).max() < 0.02  # edges become chords of the cylinder: lengths change by < 1e-3
+    corners = sharp_corners(rolled, disk.faces, disk.boundary)
+    assert corners is not None and np.allclose(np.degrees(after[corners]), 90.0, atol=1.0)
+    # along each of the two rolled sides the boundary turns in space by pi (its length over the radius)
+    in_space = loop_turning_3d(rolled, disk.boundary)
+    assert in_space.sum() - in_space[corners].sum() > 0.9 * 2 * np.pi
+
+
+def test_a_square_sheet_keeps_its_corner_ears_and_its_corners():
+    # the corners of a Delaunay square are triangles with two sides on the boundary (ears): they must stay
+    v, f, params = random_disk_mesh(flat, 300, seed=4)
+    sides = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
+    corner_ids = [int(np.argmin(np.linalg.norm(params - c, axis=1))) for c in sides]
+    boundary_sides = np.isin(f, corner_ids).any(axis=1)
+    assert boundary_sides.any()
+    disk = prepare_disk(v, f)
+    assert not any("ears" in line for line in disk.report)
+    chosen = disk.vertex_map[disk.boundary[choose_corners(disk)]]
+    assert sorted(chosen.tolist()) == sorted(corner_ids)
+
+
+def test_ears_away_from_corners_are_still_removed():
+    # a fan of a regular 24-gon around its centre, plus one ear glued on a side: the polygon has no clear corners
+    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    ring = np.c_[np.cos(angles), np.sin(angles), 0 * angles]
+    outside = 1.05 * (ring[0] + ring[1]) / 2
+    v = np.vstack([ring, [[0, 0, 0]], outside])
+    f = np.array([[k, (k + 1) % 24, 24] for k in range(24)] + [[1, 0, 25]])
+    disk = prepare_disk(v, f)
+    assert any("removed 1 boundary ears" in line for line in disk.report)
+    assert len(disk.faces) == 24
+
+
+def test_corners_given_in_order_put_the_first_at_the_origin():
+    v, f, params = random_disk_mesh(flat, 300, seed=5)
+    disk = prepare_disk(v, f)
+    loop = disk.boundary
+    ids = [
+        int(np.argmin(np.linalg.norm(params[disk.vertex_map] - c, axis=1))) for c in ([1, 1], [0, 1], [0, 0], [1, 0])
+    ]
+    positions = [int(np.flatnonzero(loop == i)[0]) for i in ids]
+    forward = (np.diff(np.array(positions) - positions[0]) % len(loop) > 0).all()
+    along = ids if forward else ids[:1] + ids[:0:-1]  # the same corners, in the loop's direction
+    pos, backwards = given_corners(disk, along)
+    assert not backwards and loop[pos].tolist() == along
+    uv, _ = HarmonicMap(disk)(pos)
+    assert np.allclose(uv[along], [[0, 0], [1, 0], [1, 1], [0, 1]])
+    pos, backwards = given_corners(disk, along[:1] + along[:0:-1])
+    assert backwards and loop[pos].tolist() == along
+    with pytest.raises(InputError, match="order around the boundary"):
+        given_corners(disk, [along[0], along[2], along[1], along[3]])
+
+
+def test_corners_given_for_a_mesh_wound_the_other_way_pin_the_diagonal_symmetry():
+    pair = deform.remeshed_pair(n_first=400, n_second=600)
+    (v1, f1), (v2, f2) = pair.first, pair.second
+    square = [[0, 0], [1, 0], [1, 1], [0, 1]]
+    ids1 = [int(np.argmin(np.linalg.norm(pair.first_params - c, axis=1))) for c in square]
+    ids2 = [int(np.argmin(np.linalg.norm(pair.second_params - c, axis=1))) for c in square]
+    found = {}
+    for name, faces in (("as made", f2), ("wound the other way", f2[:, ::-1])):
+        mr = register_meshes((v1, f1), (v2, faces), Options(resolution=41, corners1=ids1, corners2=ids2))
+        assert len(mr.result.params["starts"]) == 1  # the symmetry is fixed, not searched
+        found[name] = (mr.result.symmetry, np.median(pair.errors(deform.matched_points(mr, len(v2)))))
+    assert {found["as made"][0], found["wound the other way"][0]} == {0, SWAP}
+    assert found["as made"][1] < 0.01 and found["wound the other way"][1] < 0.01
+
+
+def test_polar_rotations_recover_rotations_and_never_reflect():
+    rng = np.random.default_rng(0)
+    from scipy.spatial.transform import Rotation
+
+    rotations = Rotation.random(50, random_state=1).as_matrix()
+    spd = np.einsum("kij,kjl->kil", a := rng.normal(size=(50, 3, 3)), a.transpose(0, 2, 1)) + 0.1 * np.eye(3)
+    found, nu = polar_rotations(rotations @ spd)
+    assert np.allclose(found, rotations) and np.allclose(nu, np.trace(spd, axis1=1, axis2=2))
+    reflecting, _ = polar_rotations(-np.eye(3)[None])
+    assert np.isclose(np.linalg.det(reflecting[0]), 1.0)
+
+
+def sheet_grid(n=41, bend_angle=None, rotation=None):
+    """The relief sheet of the benchmark on an n x n grid, optionally rolled by ``bend_angle`` degrees and turned."""
+    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    points = deform.relief_sheet()(u.ravel(), v.ravel())
+    if bend_angle is not None:
+        points = deform.bend(points, np.radians(bend_angle))
+    if rotation is not None:
+        points = points @ rotation.T
+    return GridSurface(points.reshape(n, n, 3), np.linspace(0, 1, n), np.linspace(0, 1, n))
+
+
+def test_local_energy_is_zero_for_a_turned_copy_and_small_for_a_rolled_one():
+    from meshreg.search import cube_rotations
+
+    first = sheet_grid().scaled()
+    turned = sheet_grid(rotation=cube_rotations()[5]).scaled()
+    rolled = sheet_grid(bend_angle=90.0).scaled()
+    r, t = first.r, first.t
+    assert local_energy(first.points, turned.points, r, t, 0.05) < 1e-12
+    e = Objective(first, rolled)
+    global_e = e.energy(kabsch(e.best_rotation_covariance(e.identity)), e.identity)
+    assert global_e > 0.15  # E charges the roll at the true correspondence
+    assert local_energy(first.points, rolled.points, r, t, 0.05) < 0.1 * global_e  # E_w hardly does
+
+
+def test_local_energy_of_wide_windows_is_e():
+    first, second = sheet_grid().scaled(), sheet_grid(bend_angle=90.0).scaled()
+    e = Objective(first, second)
+    global_e = e.energy(kabsch(e.best_rotation_covariance(e.identity)), e.identity)
+    assert local_energy(first.points, second.points, first.r, first.t, 1e3) == pytest.approx(global_e, rel=1e-6)
+
+
+def test_local_objective_derivative_matches_finite_differences():
+    first, second = sheet_grid(31).scaled(), sheet_grid(31, bend_angle=60.0).scaled()
+    objective = LocalObjective(first, second, window=0.1)
+    h = objective.identity.copy()
+    u, v = h[..., 0], h[..., 1]
+    move = np.stack([np.sin(np.pi * u) * np.sin(np.pi * v), 0.5 * np.sin(2 * np.pi * u) * np.sin(np.pi * v)], -1)
+    res, jac = objective.linearize(np.eye(3), h, np.array([1.0, 0.0]), np.array([0.0, 1.0]))
+    slope = 2 * res @ (jac.matrix() @ move.ravel())
+    step = 1e-5
+    numeric = (objective.energy(None, h + step * move) - objective.energy(None, h - step * move)) / (2 * step)
+    assert numeric == pytest.approx(slope, rel=1e-4)
+
+
+def test_register_bending_undoes_a_known_reparametrization_of_a_rolled_sheet():
+    """The second grid is the first sheet at gamma(u, v) = (u + 0.06 sin(2 pi u), v), rolled by 90 degrees and
+    turned: the true h is gamma^-1. E_w's descent finds it; minimizing E does not (it charges the roll)."""
+    from scipy.spatial.transform import Rotation
+
+    n = 41
+    grid = np.linspace(0, 1, n)
+    gamma = grid + 0.06 * np.sin(2 * np.pi * grid)
+    u, v = np.meshgrid(gamma, grid, indexing="ij")
+    points = deform.bend(deform.relief_sheet()(u.ravel(), v.ravel()), np.radians(90.0))
+    rotation = Rotation.from_euler("xyz", [20, -40, 65], degrees=True).as_matrix()
+    second = GridSurface(2.0 * points.reshape(n, n, 3) @ rotation.T, grid, grid)
+    first = sheet_grid(n)
+    truth = np.interp(grid, gamma, grid)  # gamma^-1 at the nodes
+
+    def error(result):
+        h = result.h
+        return np.median(np.abs(h[..., 0] - truth[:, None])) + np.median(np.abs(h[..., 1] - grid[None, :]))
+
+    options = Options(advanced=Advanced(choice_window=0.2))
+    bent = register_bending(first, second, options)
+    assert bent.symmetry == 0 and error(bent) < 0.006
+    assert error(register_grids(first, second, options.replace(bend_window=0.0))) > 2 * error(bent)
