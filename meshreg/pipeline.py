@@ -261,8 +261,7 @@ def _dp_then_descent(
     drive = Descent(objective, options, *work_objective(objective, first, second, area))
     with log.clock("dp"):
         rotation, h, _ = dp_stage(drive.work, options, both=both, rotation=rotation)
-        energy_dp = drive.full_energy(rotation, h)
-        log.step("dp", 0, energy_dp)
+        log.step("dp", 0, energy_dp := drive.full_energy(rotation, h))
     rotation, h = drive.descend(rotation, valid_start(drive.work, h), [options.basis], log)
     return Candidate(objective, rotation, h, drive.work.energy(rotation, h), log, energy_dp=energy_dp, pending=drive)
 
