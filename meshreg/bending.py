@@ -30,6 +30,8 @@ from functools import partial
 import numpy as np
 
 from .alternatives import find_alternatives
+from .choice import mirror_record
+from .errors import InputError
 from .grid import GridSurface
 from .local_rotation import LocalObjective, local_energy
 from .objective import Objective
@@ -38,7 +40,7 @@ from .residual import Residual
 from .result import Registration
 from .rotation import similarity
 from .schedule import Descent, Log, Progress, work_objective
-from .search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry, symmetry_map
+from .search import Start, apply_symmetry, symmetry_map, tried_symmetries
 
 CHOICE_GRID = 41  # nodes per axis of the coarse grids on which symmetries and corner placements are ranked
 CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction of the best are descended too
@@ -76,14 +78,6 @@ def descent_window(first: GridSurface, bend_window: float) -> float:
     return float(max(bend_window, WINDOW_CELLS * cell))
 
 
-def tried_symmetries(options: Options) -> tuple[int, ...]:
-    """The symmetries of the square that mode "auto" tries: all 8, the 4 that keep orientation
-    (``keep_orientation``), or the identity alone (without ``search`` or ``symmetries``)."""
-    if not (options.search and options.symmetries):
-        return (0,)
-    return ORIENTATION_PRESERVING if options.keep_orientation else tuple(range(len(SQUARE_SYMMETRIES)))
-
-
 def register_bending(
     first: GridSurface,
     second: GridSurface,
@@ -118,16 +112,22 @@ def register_bending(
     start = time.perf_counter()
     timings: dict = {}
     tic = time.perf_counter()
-    tried = (symmetry,) if symmetry is not None else tried_symmetries(options)
+    tried = tried_symmetries(options.search and options.symmetries, options.keep_orientation, symmetry)
     ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
-    fair = [(k, e, m) for k, e, m in ranked if not m] or ranked  # mirrored starts only when nothing else is left
-    best = fair[0][1]
-    starts = [k for k, e, _ in fair if e <= (1.0 + CHOICE_MARGIN) * best][: options.max_starts]
+    fair = [(k, e) for k, e, mirrored in ranked if not mirrored]
+    if not fair:
+        pinned = "" if symmetry is None else f" under the symmetry {symmetry} of the square (corners or --symmetry)"
+        raise InputError(f"every start{pinned} puts the first surface on a mirror image of the second")
+    close = [k for k, e in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
+    spare = [k for k, _ in fair if k not in close]
     timings["search"] = time.perf_counter() - tic
     area = second.area()
     window = descent_window(first, options.bend_window)
-    runs = [_descend(first, second, area, k, window, options, finest, Log(callback, timings)) for k in starts]
-    chosen = min(runs, key=lambda run: (run.residual.mirrored, run.bend_energy))
+
+    def descend(k: int) -> BentRun:
+        return _descend(first, second, area, k, window, options, finest, Log(callback, timings))
+
+    chosen, runs = _unmirrored(close, spare, descend)
     k, plain = chosen.symmetry, chosen.objective
     alternatives = []
     if symmetry is None:
@@ -165,6 +165,7 @@ def _params(options: Options, chosen, runs, ranked, window: float, first: GridSu
         "bend_energy": chosen.bend_energy,
         "bend_window_used": window,
         "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
+        "mirror": mirror_record(*_mirror_starts(ranked, chosen.symmetry)),
         "starts": [
             {
                 "symmetry": run.symmetry,
@@ -178,6 +179,27 @@ def _params(options: Options, chosen, runs, ranked, window: float, first: GridSu
         "grid_first": list(first.shape),
         "grid_second": list(second.shape),
     }
+
+
+def _unmirrored(close: list[int], spare: list[int], descend) -> tuple[BentRun, list[BentRun]]:
+    """Descend the ``close`` symmetries; while every run ends on the mirror image of the second, the ``spare``
+    ones, best ranked first. Returns the run of lowest E_w that is not mirrored, and every run."""
+    runs = [descend(k) for k in close]
+    while all(run.residual.mirrored for run in runs):
+        if not spare:
+            raise InputError(
+                "every correspondence found puts the first surface on a mirror image of the second "
+                f"(lowest E {min(run.energy for run in runs):.3g}): are they mirror images of each other?"
+            )
+        runs.append(descend(spare.pop(0)))
+    return min((run for run in runs if not run.residual.mirrored), key=lambda run: run.bend_energy), runs
+
+
+def _mirror_starts(ranked, chosen: int) -> tuple[Start | None, Start]:
+    """The best mirrored entry of the E_w ranking and the chosen one, as starts for
+    :func:`~meshreg.choice.mirror_record` (their ``coarse_energy`` is E_w at h = the symmetry)."""
+    mirror = next((Start(k, None, e) for k, e, mirrored in ranked if mirrored), None)
+    return mirror, next(Start(k, None, e) for k, e, _ in ranked if k == chosen)
 
 
 @dataclass

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from .objective import Objective
-from .srnf import shape_function
+from .srnf import cell_weights, shape_function
 
 TRUNCATE = 3.0  # the window's Gaussian is cut at this many standard deviations
 
@@ -57,7 +57,7 @@ class Window:
     """
 
     def __init__(self, r: np.ndarray, t: np.ndarray, window: float):
-        self.weights = np.outer(np.diff(r), np.diff(t))
+        self.weights = cell_weights(r, t)
         self.gr = gaussian_rows(0.5 * (r[1:] + r[:-1]), window)
         self.gt = gaussian_rows(0.5 * (t[1:] + t[:-1]), window)
         self.kappa = self.apply(self.weights)
@@ -72,8 +72,7 @@ class Window:
 def polar_rotations(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotations R (..., 3, 3) maximizing trace(R^T C) for matrices C (..., 3, 3), and the maxima nu (...,)."""
     u, s, vt = np.linalg.svd(c)
-    d = np.sign(np.linalg.det(u @ vt))
-    d = np.where(d == 0, 1.0, d)
+    d = np.sign(np.linalg.det(u @ vt))  # +-1: u and vt are orthogonal
     u[..., :, -1] *= d[..., None]
     s[..., -1] *= d
     return u @ vt, s.sum(axis=-1)
@@ -113,7 +112,6 @@ class LocalObjective(Objective):
 
     def __init__(self, first, second, second_area: float | None = None, *, window: float):
         super().__init__(first, second, second_area)
-        self.window = window
         self.shape_q1 = self.q1
         self._win = Window(self.r, self.t, window)
 
@@ -125,9 +123,10 @@ class LocalObjective(Objective):
         """E_w(h) (the rotation is absorbed by the rotation field)."""
         return self.fit(h)[0]
 
-    def _targeted(self, h: np.ndarray):
-        self.q1 = self.fit(h)[1]
-        return np.eye(3)
+    def _targeted(self, h: np.ndarray) -> float:
+        """Refresh the target M q1 from h (the fixed-target energy's q1); returns E_w(h)."""
+        energy, self.q1 = self.fit(h)
+        return energy
 
     def best_rotation_covariance(self, h: np.ndarray) -> np.ndarray:
         """A covariance whose Kabsch rotation is the identity (the rotation field needs no global rotation)."""
@@ -135,13 +134,14 @@ class LocalObjective(Objective):
 
     def gradient(self, rotation: np.ndarray, h: np.ndarray, dh_dr: np.ndarray, dh_dt: np.ndarray):
         """E_w(h) and its derivative density along fields composed on h (at the best rotation field)."""
-        identity = self._targeted(h)
-        _, grad = super().gradient(identity, h, dh_dr, dh_dt)
-        return self.fit(h)[0], grad
+        energy = self._targeted(h)
+        _, grad = super().gradient(np.eye(3), h, dh_dr, dh_dt)
+        return energy, grad
 
     def linearize(self, rotation: np.ndarray, h: np.ndarray, dh_dr: np.ndarray, dh_dt: np.ndarray):
         """Residuals of the fixed-target energy at h (target refreshed from h) and their Jacobian."""
-        return super().linearize(self._targeted(h), h, dh_dr, dh_dt)
+        self._targeted(h)
+        return super().linearize(np.eye(3), h, dh_dr, dh_dt)
 
     def rotation_jacobian(self, rotation: np.ndarray) -> np.ndarray:
         """Zero: a global rotation does not change E_w."""

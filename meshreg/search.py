@@ -110,6 +110,16 @@ def principal_rotations(first: GridSurface, second: GridSurface) -> np.ndarray:
     return np.array(out)
 
 
+def tried_symmetries(symmetries: bool, keep_orientation: bool, only: int | None = None) -> tuple[int, ...]:
+    """The symmetries of the square a start search tries: ``only`` when pinned; else all 8, or the 4 that keep
+    orientation (``keep_orientation``); the identity alone without ``symmetries``."""
+    if only is not None:
+        return (only,)
+    if not symmetries:
+        return (0,)
+    return ORIENTATION_PRESERVING if keep_orientation else tuple(range(len(SQUARE_SYMMETRIES)))
+
+
 @dataclass(frozen=True)
 class Start:
     """A ranked starting point: symmetry index, rotation and the coarse DP energy.
@@ -160,10 +170,7 @@ def best_start(
     coarse2 = second.scaled().resampled(grid, grid)
     rotations = np.concatenate([cube_rotations(), principal_rotations(coarse1, coarse2)])
     starts = []
-    tried = (ORIENTATION_PRESERVING if keep_orientation else range(len(SQUARE_SYMMETRIES))) if symmetries else (0,)
-    if only is not None:
-        tried = (only,)
-    for k in tried:
+    for k in tried_symmetries(symmetries, keep_orientation, only):
         ob = Objective(coarse1, apply_symmetry(coarse2, k))
         q2 = ob.second_on_first_grid()
         candidates = [kabsch(ob.best_rotation_covariance(ob.identity)), *rotations]

@@ -80,7 +80,7 @@ def test_corners_given_in_order_put_the_first_at_the_origin():
         int(np.argmin(np.linalg.norm(params[disk.vertex_map] - c, axis=1))) for c in ([1, 1], [0, 1], [0, 0], [1, 0])
     ]
     positions = [int(np.flatnonzero(loop == i)[0]) for i in ids]
-    forward = (np.diff(np.array(positions) - positions[0]) % len(loop) > 0).all()
+    forward = bool(np.all(np.diff((np.array(positions) - positions[0]) % len(loop)) > 0))
     along = ids if forward else ids[:1] + ids[:0:-1]  # the same corners, in the loop's direction
     pos, backwards = given_corners(disk, along)
     assert not backwards and loop[pos].tolist() == along
@@ -187,3 +187,26 @@ def test_register_bending_undoes_a_known_reparametrization_of_a_rolled_sheet():
     bent = register_bending(first, second, options)
     assert bent.symmetry == 0 and error(bent) < 0.006
     assert error(register_grids(first, second, options.replace(bend_window=0.0))) > 2 * error(bent)
+
+
+def _relief_grid(n: int = 21, mirror: bool = False) -> GridSurface:
+    r = np.linspace(0.0, 1.0, n)
+    u, v = np.meshgrid(r, r, indexing="ij")
+    points = deform.relief_sheet(3.0)(u.ravel(), v.ravel()).reshape(n, n, 3)
+    return GridSurface(points * np.array([1.0, 1.0, -1.0 if mirror else 1.0]), r, r)
+
+
+def test_bending_path_never_returns_a_match_on_the_mirror_image():
+    """A relief sheet against its mirror image: every match that keeps orientation is on the point reflection, so
+    the 4 rotations of the square and a pinned symmetry are refused; with all 8 the answer is not mirrored."""
+    a, b = _relief_grid(), _relief_grid(mirror=True)
+    with pytest.raises(InputError, match="mirror image"):
+        register_bending(a, b, Options(keep_orientation=True))
+    with pytest.raises(InputError, match="mirror image"):
+        register_bending(a, b, Options(), symmetry=0)
+    try:
+        result = register_bending(a, b, Options())
+    except InputError as err:
+        assert "mirror image" in str(err)
+    else:
+        assert not result.mirrored

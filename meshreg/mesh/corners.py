@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bending import CHOICE_GRID, symmetry_energies, tried_symmetries
+from ..bending import CHOICE_GRID, symmetry_energies
 from ..grid import GridSurface
 from ..options import Options
-from ..search import SQUARE_SYMMETRIES, best_start
+from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, best_start, tried_symmetries
 from .harmonic import HarmonicMap, arc_fraction, choose_corners, given_corners, has_sharp_corners, quarter_corners
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
@@ -24,11 +24,12 @@ PLACEMENT_HALVINGS = 4  # halving steps of the pair's corner search around the b
 SWAP = SQUARE_SYMMETRIES.index((True, False, False))  # (u, v) -> (v, u): corners given each way round
 
 
-def placement_starts(disk: DiskMesh, trials: int) -> np.ndarray:
+def placement_starts(disk: DiskMesh, trials: int, span: float = 0.25) -> np.ndarray:
     """Arc-length fractions (trials,) of the trial corner placements of a disk: quarter arc lengths from
-    ``trials`` starts spaced by 1/(4 trials) of its boundary, the first at the point where
-    :func:`~meshreg.mesh.harmonic.choose_corners` would start (a quarter turn is a symmetry of the square)."""
-    return arc_fraction(disk, int(choose_corners(disk)[0])) + 0.25 / trials * np.arange(trials)
+    ``trials`` starts spaced by ``span / trials`` of its boundary, the first at the point where
+    :func:`~meshreg.mesh.harmonic.choose_corners` would start. A quarter of the boundary (``span`` 0.25) covers
+    every placement when the square's quarter turns are tried too; else the whole boundary (``span`` 1)."""
+    return arc_fraction(disk, int(choose_corners(disk)[0])) + span / trials * np.arange(trials)
 
 
 def placement_corners(disk: DiskMesh, trials: int) -> list[np.ndarray]:
@@ -93,10 +94,11 @@ def search_corners(
     first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, options: Options
 ) -> tuple[np.ndarray, list]:
     """Corners of the second mesh that best match the first's: the ``options.corner_search`` placements of
-    :func:`placement_starts`, then PLACEMENT_HALVINGS halving steps around the best, each ranked by the lowest
-    E_w over the symmetries of the square at h = the symmetry, mirrored matches aside
-    (:func:`meshreg.bending.symmetry_energies`, windows
-    of ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids).
+    :func:`placement_starts` (four times as many, over the whole boundary, when the square's quarter turns are
+    not tried: ``search`` or ``symmetries`` off, or a pinned ``symmetry``), then PLACEMENT_HALVINGS halving
+    steps around the best, each ranked by the lowest E_w over the symmetries of the square at h = the
+    symmetry, mirrored matches aside (:func:`meshreg.bending.symmetry_energies`, windows of
+    ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids).
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
     different places, and no reparametrization that keeps the corners can undo that. This finds them; E_w
@@ -105,21 +107,23 @@ def search_corners(
     Returns the second's corner loop positions (4,) and the (start, rank) pairs tried.
     """
     n, trials = CHOICE_GRID, options.corner_search
-    window, symmetries = options.advanced.choice_window, tried_symmetries(options)
-    disk1, disk2 = first.disk, second.disk
+    symmetries = tried_symmetries(options.search and options.symmetries, options.keep_orientation, options.symmetry)
+    span = 0.25 if set(ORIENTATION_PRESERVING) <= set(symmetries) else 1.0
+    window, disk1, disk2 = options.advanced.choice_window, first.disk, second.disk
     aa = options.antialias
     coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n, aa)
 
     def rank(start):
         grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n, aa)
         ranked = symmetry_energies(coarse1, grid, window, symmetries)
-        return next((e for _, e, mirrored in ranked if not mirrored), ranked[0][1])
+        return next((e for _, e, mirrored in ranked if not mirrored), np.inf)  # only mirrored matches: last
 
-    tried = [(float(start), rank(start)) for start in placement_starts(disk2, trials)]
+    count = round(trials * span / 0.25)  # the same spacing, 1 / (4 trials) of the boundary, over the span
+    tried = [(float(start) % 1.0, rank(start)) for start in placement_starts(disk2, count, span)]
     step = 0.25 / trials
     for _ in range(PLACEMENT_HALVINGS):
         best, step = min(tried, key=lambda x: x[1])[0], step / 2
-        tried += [(best + d, rank(best + d)) for d in (-step, step)]
+        tried += [((best + d) % 1.0, rank(best + d)) for d in (-step, step)]
     best = min(tried, key=lambda x: x[1])[0]
     return quarter_corners(disk2, best % 1.0), tried
 

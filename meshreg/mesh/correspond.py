@@ -99,6 +99,11 @@ def register_meshes(
         infos[name].update(info)
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
+    if symmetry is not None and options.symmetry not in (None, symmetry):
+        raise InputError(
+            f"the corners given for both meshes fix the symmetry of the square to {symmetry}, not the pinned "
+            f"{options.symmetry}: give corners or a symmetry, not both"
+        )
     pinned = options.symmetry if symmetry is None else symmetry
     if options.mode == "auto" and options.bend_window > 0:
         edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])

@@ -193,7 +193,8 @@ class HarmonicMap:
         self._lu = _factorize(lap[self.interior][:, self.interior].tocsc()) if len(self.interior) else None
 
     def __call__(self, corner_pos: np.ndarray):
-        """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, increasing), and an
+        """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from
+        the one that goes to (0, 0), wrapping around the loop's end), and an
         info dict: ``corners`` (vertex ids), ``flipped`` and ``degenerate`` (triangle counts after mapping)."""
         disk = self.disk
         f, loop = disk.faces, disk.boundary
