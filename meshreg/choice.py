@@ -18,6 +18,10 @@ SYMMETRY_MARGIN = 0.05
 # the search reports that a mirror image of the second surface fits clearly better when its best coarse energy is
 # below this fraction of the chosen start's
 MIRROR_MARGIN = 0.5
+# two starts whose coarse energies agree to this relative tolerance are twins: a symmetry of the surfaces maps one
+# problem onto the other (measured: the twins of the paper's pairs agree to 1e-15), so only the first is registered;
+# the other stays a spare, and the chosen answer's symmetric twins are listed by meshreg.alternatives
+TWIN_TOL = 1e-9
 
 
 def ranked_starts(first: GridSurface, second: GridSurface, options: Options, timings: dict):
@@ -95,11 +99,18 @@ def choose(candidates: list[Candidate], options: Options) -> int:
 
 def close_starts(starts: list[Start], max_starts: int, margin: float) -> list[Start]:
     """The ranked starts worth a full registration: the best, then those whose coarse energy is within
-    ``margin`` of it (at most ``max_starts``). The identity symmetry goes first when it is within
-    SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given parametrization)."""
+    ``margin`` of it (at most ``max_starts``), twins left out (a start whose coarse energy equals, within TWIN_TOL,
+    that of one kept already: the same problem under a symmetry of the surfaces). The identity symmetry goes first
+    when it is within SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given
+    parametrization)."""
     best = starts[0]
     identity = next((s for s in starts if s.symmetry == 0), best)
     if identity.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
         starts = [identity] + [s for s in starts if s is not identity]
-    close = [s for s in starts if s.energy <= (1.0 + margin) * best.energy or s is starts[0]]
+    close = []
+    for s in starts:
+        if s.energy > (1.0 + margin) * best.energy and s is not starts[0]:
+            continue
+        if not any(abs(s.energy - k.energy) <= TWIN_TOL * abs(k.energy) for k in close):
+            close.append(s)
     return close[:max_starts]

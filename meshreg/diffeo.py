@@ -44,6 +44,34 @@ def corner_areas(h: np.ndarray) -> np.ndarray:
     return np.stack([cross(a, b, d), cross(b, c, a), cross(c, d, b), cross(d, a, c)])
 
 
+def largest_step(h: np.ndarray, v: np.ndarray) -> float:
+    """The largest s such that h + s' v keeps every corner triangle of :func:`corner_areas` positive for all
+    0 <= s' < s (``inf`` when no triangle limits it). h is valid; v has the shape of h.
+
+    Each corner area is quadratic in s; the bound is the smallest positive root over all triangles.
+    """
+    hv = np.stack([h, v])
+    a, b, c, d = hv[:, :-1, :-1], hv[:, 1:, :-1], hv[:, 1:, 1:], hv[:, :-1, 1:]
+
+    def coefficients(o, p, q):
+        (dp, dvp), (dq, dvq) = p - o, q - o
+        c0 = dp[..., 0] * dq[..., 1] - dp[..., 1] * dq[..., 0]
+        c1 = dp[..., 0] * dvq[..., 1] - dp[..., 1] * dvq[..., 0] + dvp[..., 0] * dq[..., 1] - dvp[..., 1] * dq[..., 0]
+        c2 = dvp[..., 0] * dvq[..., 1] - dvp[..., 1] * dvq[..., 0]
+        return c0, c1, c2
+
+    corners = ((a, b, d), (b, c, a), (c, d, b), (d, a, c))
+    c0, c1, c2 = (np.stack(x) for x in zip(*(coefficients(*t) for t in corners), strict=True))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        linear = np.where(c1 < 0, -c0 / c1, np.inf)
+        disc = c1 * c1 - 4.0 * c2 * c0
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        roots = np.stack([(-c1 - sq) / (2 * c2), (-c1 + sq) / (2 * c2)])
+        roots = np.where((disc >= 0) & (roots > 0), roots, np.inf).min(axis=0)
+    bound = np.where(np.abs(c2) > 1e-14 * (np.abs(c1) + np.abs(c0)), roots, linear)
+    return float(bound.min())
+
+
 def jacobian_determinant(h: np.ndarray, r: np.ndarray, t: np.ndarray) -> np.ndarray:
     """det Jh per cell from the cell's diagonals, shape (M-1, N-1) (its mean over the cell)."""
     d1 = h[1:, 1:] - h[:-1, :-1]

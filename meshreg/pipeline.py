@@ -251,14 +251,14 @@ def _dp_only(first: GridSurface, second: GridSurface, area: float, rotation, opt
 def _dp_then_descent(
     first: GridSurface, second: GridSurface, area: float, rotation, options: Options, log: Log, both: bool
 ) -> Candidate:
-    """Modes "dp+gd" (``both`` False) and "auto" (``both``: DP along r and t): the DP stage, then the basis
-    descent from its R and h on the work grid; the refinement is left pending."""
+    """Modes "dp+gd" (``both`` False) and "auto" (``both``: DP along r and t): the DP stage and the basis descent
+    from its R and h, both on the work grid; the refinement is left pending."""
     objective = Objective(first, second, area)
-    with log.clock("dp"):
-        rotation, h, energy_dp = dp_stage(objective, options, both=both, rotation=rotation)
-        log.step("dp", 0, energy_dp)
     drive = Descent(objective, options, *work_objective(objective, first, second, area))
-    rotation, h = drive.descend(rotation, drive.restrict(valid_start(objective, h)), [options.basis], log)
+    with log.clock("dp"):
+        rotation, h, _ = dp_stage(drive.work, options, both=both, rotation=rotation)
+        log.step("dp", 0, energy_dp := drive.full_energy(rotation, h))
+    rotation, h = drive.descend(rotation, valid_start(drive.work, h), [options.basis], log)
     return Candidate(objective, rotation, h, drive.work.energy(rotation, h), log, energy_dp=energy_dp, pending=drive)
 
 

@@ -1,11 +1,11 @@
 """The stages of one registration and their order: the DP stage, the basis descent and the refinement levels.
 
 Every stage alternates with Kabsch (Steps 2-3 of the paper's outline: descend in h, then find the best R for
-that h, until Kabsch stops helping). The descent runs on a work grid of at most :data:`COARSE_NODES` nodes per
-axis; the refinement levels are cubic B-spline bases of :data:`REFINE_KNOTS` functions per axis on the work grid,
-then every node of the full grid. Mode "gd" adds smoothed copies of both surfaces before all that
-(:mod:`meshreg.scale`). Each change of level goes through :func:`carry`: h is upsampled bicubically to the next
-grid and made a valid start there.
+that h, until Kabsch stops helping). The DP stage of modes "dp+gd" and "auto" and the descent run on a work grid
+of at most :data:`COARSE_NODES` nodes per axis; the refinement levels are cubic B-spline bases of
+:data:`REFINE_KNOTS` functions per axis on the work grid, then every node of the full grid. Mode "gd" adds
+smoothed copies of both surfaces before all that (:mod:`meshreg.scale`). Each change of level goes through
+:func:`carry`: h is upsampled bicubically to the next grid and made a valid start there.
 
 :class:`Log` gathers what a run reports: the energies of the full grid after every accepted step, the
 progress callback and the seconds per stage.
@@ -228,6 +228,12 @@ class Descent:
         self.work, self.nodes = work, nodes
         self.solver = descend if options.solver == "gradient" else gauss_newton
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
+
+    def full_energy(self, rotation, h: np.ndarray) -> float:
+        """E on the full grid of R and h given at the work grid's nodes (h carried up when the grids differ)."""
+        if self.work is self.objective:
+            return self.work.energy(rotation, h)
+        return self.objective.energy(rotation, carry(h, self.work, self.objective))
 
     def restrict(self, h: np.ndarray) -> np.ndarray:
         """h at the full grid's nodes -> h at the work grid's nodes."""

@@ -339,3 +339,26 @@ def test_nearly_symmetric_sheet_is_not_matched_with_its_mirror_image():
     assert mr.result.params["mirror"]["coarse_energy"] < chosen["coarse_energy"]
     only_best = register_meshes(first, second, Options(resolution=61, max_starts=1, bend_window=0.0))
     assert only_best.result.energy == pytest.approx(mr.result.energy, rel=1e-6)
+
+
+def test_simplified_mesh_for_figures_keeps_the_shape():
+    """A 20 000-triangle grid of a paraboloid drawn with at most ~2 000 triangles: fewer triangles, no collapsed
+    or repeated ones, vertices on the surface's bounding box and each kept triangle's colour one of the originals."""
+    from meshreg.viz import simplified
+
+    n = 101
+    u, v = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n), indexing="ij")
+    points = np.stack([u, v, u**2 + v**2], axis=-1).reshape(-1, 3)
+    nodes = np.arange(n * n).reshape(n, n)
+    a, b, c, d = nodes[:-1, :-1].ravel(), nodes[1:, :-1].ravel(), nodes[:-1, 1:].ravel(), nodes[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    values = np.arange(len(faces), dtype=float)[:, None]
+    p, f, val = simplified(points, faces, values, 2000)
+    assert 500 < len(f) <= 3000 and len(val) == len(f)
+    assert np.all((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]))
+    assert len(np.unique(np.sort(f, axis=1), axis=0)) == len(f)
+    assert np.all(p.min(axis=0) >= points.min(axis=0) - 1e-12) and np.all(p.max(axis=0) <= points.max(axis=0) + 1e-12)
+    assert np.abs(p[:, 2] - (p[:, 0] ** 2 + p[:, 1] ** 2)).max() < 0.05  # merged vertices stay near the surface
+    assert set(val[:, 0]) <= set(values[:, 0])
+    small = faces[:100]
+    assert simplified(points, small, values[:100], 2000)[1] is small  # small enough: drawn as given

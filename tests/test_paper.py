@@ -59,3 +59,16 @@ def test_gd_alone_does_no_worse_than_the_papers_runs_without_dp(name):
     if pair.same_shape:
         assert result.energy < 1e-6
         assert angle_between(result.rotation, pair.rotation) < 0.1
+
+
+@pytest.mark.parametrize("mode", ["auto", "dp+gd"])
+def test_grid_finer_than_the_work_grid_finds_the_true_answer(mode):
+    """On 121 x 121 nodes (DP, descent and B-spline levels on a work grid of every other node, the node level on
+    the full grid) the same-shape pair still gives E near 0, the true rotation and the true h."""
+    pair = next(p for p in paper_pairs(121, 121) if p.name == "helicoid4 g2")
+    result = meshreg.register(pair.first, pair.second, mode=mode)
+    assert result.h.shape == (121, 121, 2)
+    assert result.energy < 1e-6
+    assert angle_between(result.rotation, pair.rotation) < 0.01
+    h_true = pair.h_true(result.h[..., 0] * 0 + result.r[:, None], result.h[..., 1] * 0 + result.t[None, :])
+    assert np.abs(result.h - h_true).max() < 1e-2

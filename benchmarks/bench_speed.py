@@ -1,0 +1,141 @@
+"""The figures of issue 17 in one table: grid registration in mode "auto" at 101 x 101 and 401 x 401, the mesh
+front end, two meshes through the API and the whole ``meshreg register`` command on two PLY files.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_speed.py [--quick] [--faces 100000]
+
+Warm runs: the numba kernels are compiled (or loaded from their cache) by small registrations first. ``--quick``
+runs a subset in under a minute (three of the paper's pairs at 101 x 101, sine 2-3 at 201 x 201, the mesh front
+end, two meshes through the API); the full run adds every paper pair, 401 x 401 and the command line. The distance
+matrix throughput is measured by ``benchmarks/bench_matrix.py``. Times on a shared machine vary by +-30 %.
+"""
+
+import argparse
+import datetime
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial.transform import Rotation
+
+import meshreg
+from meshreg.diffeo import enforce_boundary
+from meshreg.mesh.corners import mesh_grids
+from meshreg.mesh.samples import random_disk_mesh, terrain_function
+from meshreg.objective import Objective
+from meshreg.options import Options
+from meshreg.samples import paper_pairs
+from meshreg.spline import GridInterpolator
+
+QUICK_PAIRS = ["sine2-3 g1", "helicoid4 g2", "cossin g2"]
+FINE_PAIRS = ["helicoid4 g2", "sine2-3 g1"]
+
+
+def timed(fn, *args, **kwargs):
+    """(seconds, value) of one call."""
+    tic = time.perf_counter()
+    value = fn(*args, **kwargs)
+    return time.perf_counter() - tic, value
+
+
+def grid_rows(quick: bool) -> list[tuple[str, float, str]]:
+    """Mode auto on the paper's pairs at 101 x 101 (median and slowest) and on two pairs at a finer grid, with
+    the ratio of E there to E at 101 x 101."""
+    rows, coarse = [], {}
+    pairs = [p for p in paper_pairs(101, 101) if not quick or p.name in QUICK_PAIRS]
+    runs = []
+    for pair in pairs:
+        seconds, result = timed(meshreg.register, pair.first, pair.second)
+        coarse[pair.name] = result
+        runs.append((seconds, pair.name, result.energy))
+        rows.append((f"auto 101^2 {pair.name}", seconds, f"{result.energy:.3g}"))
+    times = sorted(r[0] for r in runs)
+    slowest = max(runs)
+    rows.append((f"auto 101^2 median over {len(runs)} pairs", float(np.median(times)), ""))
+    rows.append((f"auto 101^2 slowest ({slowest[1]})", slowest[0], f"{slowest[2]:.3g}"))
+    size = 201 if quick else 401
+    fine = [p for p in paper_pairs(size, size) if p.name in (FINE_PAIRS[1:] if quick else FINE_PAIRS)]
+    for pair in fine:
+        seconds, result = timed(meshreg.register, pair.first, pair.second)
+        ratio = result.energy / coarse[pair.name].energy if pair.name in coarse else float("nan")
+        rows.append((f"auto {size}^2 {pair.name}", seconds, f"{result.energy:.3g} (x{ratio:.2f} of E at 101^2)"))
+        if pair.name in coarse:
+            rows.append(
+                (f"  the 101^2 answer measured on the {size}^2 grid", float("nan"), resampled(coarse[pair.name], pair))
+            )
+    return rows
+
+
+def resampled(result, pair) -> str:
+    """E on the pair's grid of the answer found on 101 x 101 (R, and h upsampled bicubically): both answers
+    measured the same way."""
+    objective = Objective(pair.first, pair.second)
+    h = GridInterpolator(result.h, result.r, result.t)(objective.identity[..., 0], objective.identity[..., 1])[0]
+    return f"{objective.energy(result.rotation, enforce_boundary(h)):.3g}"
+
+
+def mesh_pair(faces: int):
+    """Two terrain meshes of about ``faces`` triangles each, the second rotated and scaled."""
+    surface = terrain_function()
+    a = random_disk_mesh(surface, faces // 2, seed=2)[:2]
+    turn = Rotation.random(random_state=4).as_matrix()
+    b = random_disk_mesh(surface, faces // 2, seed=3, rotation=turn, scale=2.0)[:2]
+    return a, b
+
+
+def mesh_rows(faces: int, quick: bool) -> list[tuple[str, float, str]]:
+    """The front end of one mesh, two meshes through the API and (full run) the command line on two PLY files."""
+    a, b = mesh_pair(faces)
+    seconds, _ = timed(mesh_grids, *a, Options())
+    rows = [(f"mesh front end, {len(a[1])} triangles", seconds, "")]
+    seconds, result = timed(meshreg.register, a, b)
+    rows.append((f"two meshes of {len(a[1])}/{len(b[1])} triangles, API", seconds, f"{result.energy:.3g}"))
+    if quick:
+        return rows
+    with tempfile.TemporaryDirectory() as folder:
+        paths = [Path(folder) / "a.ply", Path(folder) / "b.ply"]
+        for path, (v, f) in zip(paths, (a, b), strict=True):
+            trimesh.Trimesh(v, f, process=False).export(path)
+        command = [sys.executable, "-m", "meshreg.cli", "register", *map(str, paths), "-o", str(Path(folder) / "o")]
+        seconds, done = timed(subprocess.run, command, capture_output=True, text=True)
+        if done.returncode:
+            raise SystemExit(done.stderr)
+        rows.append(("meshreg register a.ply b.ply, whole command", seconds, ""))
+    return rows
+
+
+def warm_up():
+    """Compile (or load) the numba kernels of grids and meshes."""
+    pair = paper_pairs(21, 21)[0]
+    meshreg.register(pair.first, pair.second)
+    a, b = mesh_pair(2000)
+    meshreg.register(a, b)
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--quick", action="store_true", help="a subset, in under a minute")
+    parser.add_argument("--faces", type=int, default=100_000, help="triangles per mesh")
+    args = parser.parse_args()
+    np.seterr(all="ignore")
+    warm_up()
+    rows = grid_rows(args.quick) + mesh_rows(args.faces, args.quick)
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"{platform.python_implementation()} {platform.python_version()}, "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"
+    )
+    print("| figure | seconds | E |")
+    print("|---|---|---|")
+    for name, seconds, energy in rows:
+        print(f"| {name} | {'' if np.isnan(seconds) else f'{seconds:.2f}'} | {energy} |")
+
+
+if __name__ == "__main__":
+    main()
