@@ -3,6 +3,7 @@
     python benchmarks/bench_peers.py                       # every pair and tool: 24 min, 9 min of CPU
     python benchmarks/bench_peers.py --quick               # small meshes: 9 min, 5 min of CPU
     python benchmarks/bench_peers.py --pairs roll-90 fold-90 --tools meshreg param open3d
+    python benchmarks/bench_peers.py --pairs sheet-90% face-crops-5mm-bent --tools meshreg meshreg-whole open3d
     python benchmarks/bench_peers.py --diagnose --tools meshreg param --pairs fold-90 roll-90 roll-180
     python benchmarks/bench_peers.py --tools meshreg param --option bend_window=0.03 advanced.refine_triangles=0
     python benchmarks/bench_peers.py --list
@@ -15,12 +16,18 @@ second's vertices that have a true point (those over the first: the overlap, for
 Tools, all on the same meshes:
 
 - ``meshreg``: the command line's default (``register_meshes(a, b, Options())``: corners by the boundary's turning
-  within the surface, the square's symmetry by E_w, E_w descended from the parametrization; docs/bending.md), each
-  vertex of the second mapped through the registration to the first's square and onto the first mesh; E (at the
-  answer) and E_w (what was minimized) are printed beside it.
+  within the surface, the square's symmetry by E_w, E_w descended from the parametrization; docs/bending.md; where
+  the meshes cover different regions, only the common region, docs/overlap.md), each vertex of the second mapped
+  through the registration to the first's square and onto the first mesh; E (at the answer), E_w (what was
+  minimized) and the overlap meshreg found (its verdict and the share of each mesh's area in the common region,
+  :mod:`meshreg.mesh.overlap`) are printed beside it. A vertex of the second that meshreg leaves out (outside the
+  overlap it found) counts as an infinite error.
+- ``meshreg-whole``: the same with ``overlap="off"``: the whole meshes registered, as before issue 19.
 - ``param``: the parametrization alone, no optimization: the two harmonic maps to the square with the corners
   meshreg chose, corresponding points sharing uv up to the symmetry of the square meshreg chose (h = sigma; the
   boundary loops start at arbitrary corners, so h = identity alone means nothing); seconds: the mesh preparation.
+  For a pair meshreg registers by its common region, the second's layout is the first's pulled back through the
+  match (h = identity), so ``param`` repeats ``meshreg``.
 - ``open3d``: FPFH features + RANSAC, then point-to-plane ICP (rigid, global: no start needed); voxel 0.03 or the
   meshes' median edge length if larger (features within 5 voxels, normals from the triangles).
 - ``icp``: ``trimesh.registration.icp`` from the 24 rotations of the cube (600 vertices onto the first's
@@ -136,6 +143,9 @@ def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, 
         ranked = [s["choice_energy"] for s in ranking if not s["mirrored"]]
         if len(ranked) > 1:  # how clearly E_w at the start picked the square's symmetry
             note += f", symmetry {mr.result.symmetry}: next E_w {ranked[1] / ranked[0]:.2f} x"
+    if "overlap" in mr.result.info:
+        o = mr.result.info["overlap"]
+        note += f"; overlap {o['regime']}, {o['first_fraction']:.3f} / {o['second_fraction']:.3f}"
     found = Outcome(deform.matched_points(mr, n2), seconds, note, {"E": energy}, cpu)
     note = f"h = symmetry {mr.result.symmetry} of the square (meshreg's)"
     baseline = Outcome(deform.parametrization_points(mr, n2), seconds - mr.result.timings["total"], note)
@@ -336,7 +346,7 @@ PEERS = {
     "cpd": (peer_cpd, "pycpd"),
     "bcpd": (peer_bcpd, "probreg"),
 }
-TOOLS = ("meshreg", "param", *PEERS)
+TOOLS = ("meshreg", "meshreg-whole", "param", *PEERS)
 
 
 def missing(module: str) -> str | None:
@@ -493,6 +503,8 @@ def main(argv=None):
             rows += [row(pair, t, o) for t, o in (("meshreg", found), ("param", baseline)) if t in args.tools]
             if args.diagnose and not pair.partial:
                 notes += diagnose(pair, mr, rows, options)
+        if "meshreg-whole" in args.tools:
+            rows.append(row(pair, "meshreg-whole", run_meshreg(pair, options.replace(overlap="off"))[0]))
         fr = frames(pair) if peers else None
         for tool in peers:
             t0, c0, fr.borrowed = time.perf_counter(), time.process_time(), np.zeros(2)

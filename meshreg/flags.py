@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .options import MODES, REFINEMENTS, SOLVERS, WEIGHTS, Advanced, Options
+from .options import MODES, OVERLAPS, REFINEMENTS, SOLVERS, WEIGHTS, Advanced, Options
 
 
 @dataclass(frozen=True)
@@ -93,6 +93,15 @@ FLAGS: tuple[Flag, ...] = (
         "grid nodes average the mesh sampled K times finer (default 3; 1 = point samples)",
         int,
         metavar="K",
+        group="meshes",
+    ),
+    Flag(
+        "--overlap",
+        "overlap",
+        "auto: register only where the meshes overlap when they cover different regions; off: always the whole "
+        "meshes (default auto)",
+        str,
+        choices=OVERLAPS,
         group="meshes",
     ),
     Flag(

@@ -33,6 +33,7 @@ MODES = ("auto", "dp", "gd", "dp+gd")
 SOLVERS = ("gauss-newton", "gradient")
 REFINEMENTS = ("nodes", "none")
 WEIGHTS = ("mean-value", "cotangent")
+OVERLAPS = ("auto", "off")
 MAX_BASIS = 40  # KL beyond this gives 2 (KL + 2 KL^2) > 6000 fields: more than any grid here resolves
 MAX_WINDOW = 10_000
 
@@ -239,6 +240,10 @@ class Options:
     corner_search : int
         Trial corner placements of the second mesh when the boundaries have no four clear corners; 0 turns
         the search off. Default 8.
+    overlap : {"auto", "off"}
+        Meshes: "auto" finds where the two overlap (:mod:`meshreg.mesh.overlap`); when they cover different
+        regions (two scans, two crops), only the common region is registered and vertices outside it get no match.
+        "off" always registers the whole meshes. Default "auto" (a no-op for meshes that cover the same region).
     bend_window : float
         Meshes in mode "auto": the correspondence starts from the two maps to the square (which bending does not
         change) and descends E_w, E with a rotation of its own for every window of this width (side lengths of
@@ -273,12 +278,19 @@ class Options:
     corners1: tuple[int, int, int, int] | None = None
     corners2: tuple[int, int, int, int] | None = None
     corner_search: int = 8
+    overlap: str = "auto"
     bend_window: float = 0.05
     force: bool = False
     advanced: Advanced = field(default_factory=Advanced)
 
     def __post_init__(self):
-        for name, allowed in (("mode", MODES), ("solver", SOLVERS), ("refine", REFINEMENTS), ("weights", WEIGHTS)):
+        for name, allowed in (
+            ("mode", MODES),
+            ("solver", SOLVERS),
+            ("refine", REFINEMENTS),
+            ("weights", WEIGHTS),
+            ("overlap", OVERLAPS),
+        ):
             if getattr(self, name) not in allowed:
                 raise InputError(f"unknown {name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
         for name in ("search", "symmetries", "cleanup", "force"):

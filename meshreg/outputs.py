@@ -179,10 +179,13 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
                 title=f"{title}: hover a point to see its match",
             )
     notes = []
-    for name, info in mr.info.items():
+    for name in ("first", "second"):
+        info = mr.info[name]
         notes += [f"{name} mesh cleanup: {line}" for line in info["cleanup"]]
         if info["flipped"]:
             notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
+    if "overlap" in mr.info:
+        notes.append(overlap_note(mr.info["overlap"]))
     return Written(result, [out / name for name in names], notes), mr
 
 
@@ -200,6 +203,17 @@ def _registration_figure(result: Registration, first, second, path: Path, title:
         **({"minimized": "E_w (E with local rotations)"} if "bend_energy" in result.params else {}),
         notes=result.correspondence_notes(),
     )
+
+
+def overlap_note(overlap: dict) -> str:
+    """One line saying how much of each mesh overlaps the other and what was registered."""
+    share = f"first {overlap['first_fraction']:.1%}, second {overlap['second_fraction']:.1%} of their area"
+    if overlap["regime"] == "full":
+        return f"overlap: the meshes cover the same region ({share}); registered whole"
+    if overlap["regime"] == "whole":
+        return f"overlap: {share} at the best pose, not trusted ({overlap['reason']}); registered whole"
+    how = "the same surface" if overlap["regime"] == "rigid" else "a deformed surface"
+    return f"overlap: {share} ({how}); only the common region registered, vertices outside it unmatched (grey)"
 
 
 def run_demo(out, options: Options | None = None, callback: Progress | None = None, html: bool = True) -> Written:

@@ -24,11 +24,8 @@ Modes (a table, :data:`SOLVE`, of functions each returning a :class:`~meshreg.sc
     (:mod:`meshreg.alternatives`).
 
 The descent and refinement schedule is in :mod:`meshreg.schedule`; ``refine="none", solver="gradient",
-smoothing=(), start_basis=5`` is the paper's procedure as published. See docs/method.md.
-
-References
-----------
-Bernal & Lawrence, Section 4 (Simplified Outline of Optimization Procedure, Steps 1-4).
+smoothing=(), start_basis=5`` is the paper's procedure as published (Bernal & Lawrence, Section 4, Simplified
+Outline of Optimization Procedure, Steps 1-4). See docs/method.md.
 """
 
 from __future__ import annotations
@@ -78,6 +75,7 @@ def register(
     corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
     corner_search: int = DEFAULTS.corner_search,
+    overlap: str = DEFAULTS.overlap,
     bend_window: float = DEFAULTS.bend_window,
     force: bool = DEFAULTS.force,
     advanced: Advanced | None = None,
@@ -96,11 +94,9 @@ def register(
     symmetry : int, optional
         Pins the symmetry of the square applied to the second surface (an index of
         :data:`meshreg.search.SQUARE_SYMMETRIES`, as in ``result.symmetry`` and ``result.alternatives``).
-    resolution, weights, antialias, cleanup, corners1, corners2, corner_search
-        How meshes are prepared (cleanup, map to the square, resampling): see :class:`meshreg.options.Options`.
-    bend_window
-        Meshes in mode "auto": windows within which E_w lets the surface bend (default 0.05; 0: minimize E
-        itself); see :mod:`meshreg.bending`.
+    resolution, weights, antialias, cleanup, corners1, corners2, corner_search, overlap, bend_window
+        How meshes are prepared and registered (cleanup, map to the square, resampling, overlap; the windows within
+        which E_w lets them bend, :mod:`meshreg.bending`): see :class:`~.options.Options`.
     force : bool
         Lift the limits on grid size, DP window, basis and corner search of :mod:`meshreg.limits`.
     advanced : Advanced, optional
@@ -149,6 +145,7 @@ def register(
         corners1=corners1,
         corners2=corners2,
         corner_search=corner_search,
+        overlap=overlap,
         bend_window=bend_window,
         force=force,
         advanced=Advanced() if advanced is None else advanced,
@@ -157,9 +154,8 @@ def register(
 
 
 def register_with(first, second, options: Options, callback: Progress | None = None) -> Registration:
-    """:func:`register` with every setting in one :class:`~meshreg.options.Options` (the command line, the adapters
-    and the distance matrix call this). ``first`` and ``second`` are two grids or two meshes, in any form
-    :func:`meshreg.surfaces.as_input` takes."""
+    """:func:`register` with every setting in one :class:`~.options.Options` (the CLI, the adapters and the distance
+    matrix call this); ``first``, ``second``: two grids or two meshes in any form :func:`~.surfaces.as_input` takes."""
     if not isinstance(options, Options):
         raise InputError(f"options must be a meshreg.Options, got {type(options).__name__}")
     a, b = as_input(first, "first"), as_input(second, "second")

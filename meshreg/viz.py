@@ -216,7 +216,9 @@ def plot_meshes(
 
         finite = distance[np.isfinite(distance)]
         norm = Normalize(0.0, float(np.percentile(finite, 98)) if len(finite) else 1.0)
-        face_value = np.nanmean(distance[f1], axis=1)
+        known = np.isfinite(distance[f1])  # a vertex without a match (outside the overlap, dropped) is NaN
+        total = np.where(known, distance[f1], 0.0).sum(axis=1)
+        face_value = np.where(known.any(axis=1), total / np.maximum(known.sum(axis=1), 1), np.nan)
         colors = cm.viridis(norm(np.nan_to_num(face_value, nan=0.0)))[:, :3]
         colors[np.isnan(face_value)] = 0.6
         ax = fig.add_subplot(1, count, count, projection="3d")

@@ -15,6 +15,8 @@ from ..result import Registration
 from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap, edge_length
+from .overlap import rigid_overlap, warped_overlap
+from .partial import register_overlap
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
 
@@ -66,7 +68,9 @@ def register_meshes(
         (default 0.05) the correspondence starts from the two maps to the square and descends E_w, which lets
         the surface bend (:func:`meshreg.bending.register_bending`); the symmetry of the square (which corner
         of the boundary became (0, 0)) is chosen, or fixed by corners given for both meshes. Other modes, or
-        ``bend_window=0``, minimize E (:func:`meshreg.pipeline.register_grids`).
+        ``bend_window=0``, minimize E (:func:`meshreg.pipeline.register_grids`). With ``overlap="auto"`` (the
+        default) meshes that cover different regions are registered only where they overlap
+        (:mod:`meshreg.mesh.overlap`, :mod:`meshreg.mesh.partial`; docs/overlap.md).
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
     names : (str, str)
@@ -89,6 +93,39 @@ def register_meshes(
             raise InputError(f"{mesh.name}: {err}") from None
         disks.append(disk)
         infos[name] = {"cleanup": disk.report}
+    n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
+    if options.overlap == "off":
+        return register_disks(disks, maps, n_input, infos, options, callback)
+    found = rigid_overlap(disks[0], disks[1])
+    if found.regime == "rigid":
+        return register_overlap(disks[0], disks[1], found, n_input, options, infos)
+    whole = register_disks(disks, maps, n_input, infos, options, callback)
+    if found.regime == "deformed":
+        matches = whole.result.first.at_uv(whole.matched_uv2)[0]
+        found = warped_overlap(disks[0], disks[1], found, matches)
+        if found.regime in ("rigid", "elastic"):
+            return register_overlap(disks[0], disks[1], found, n_input, options, infos)
+    whole.info["overlap"] = found.summary()
+    return replace(whole, result=replace(whole.result, info=json_ready(whole.info)))
+
+
+def register_disks(
+    disks: list[DiskMesh], maps: list[HarmonicMap], n_input: tuple[int, int], infos: dict, options: Options, callback
+) -> MeshRegistration:
+    """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners,
+    harmonic maps, grids, :func:`meshreg.bending.register_bending` or :func:`meshreg.pipeline.register_grids`.
+
+    Parameters
+    ----------
+    disks : [DiskMesh, DiskMesh]
+    maps : [HarmonicMap, HarmonicMap]
+        Their factorized Laplacians.
+    n_input : (int, int)
+        Vertex counts of the meshes as given.
+    infos : dict
+        The preparation report per mesh ("first", "second"), completed here.
+    """
+    infos = {name: dict(info) for name, info in infos.items()}
     positions, tried, symmetry = corner_positions(disks, maps, options)
     if tried is not None:
         infos["second"]["corner_search"] = tried
@@ -111,8 +148,8 @@ def register_meshes(
         result = register_bending(grids[0], grids[1], options, callback, pinned, finest)
     else:
         result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
-    sides = [Side.from_disk(d, uv, len(m.vertices)) for d, uv, m in zip(disks, uvs, meshes, strict=True)]
-    result = replace(result, first=sides[0], second=sides[1], info=_json_ready(infos))
+    sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
+    result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
     return MeshRegistration(
         disks[0],
         disks[1],
@@ -125,12 +162,12 @@ def register_meshes(
     )
 
 
-def _json_ready(info: dict) -> dict:
+def json_ready(info: dict) -> dict:
     """The preparation report with numpy values made plain (it is saved as JSON in result.npz)."""
     if isinstance(info, dict):
-        return {str(k): _json_ready(v) for k, v in info.items()}
+        return {str(k): json_ready(v) for k, v in info.items()}
     if isinstance(info, (list, tuple)):
-        return [_json_ready(v) for v in info]
+        return [json_ready(v) for v in info]
     if isinstance(info, np.ndarray):
         return info.tolist()
     return info.item() if isinstance(info, np.generic) else info

@@ -154,8 +154,8 @@ def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(uv[e[:, 0]] - uv[e[:, 1]], axis=1)))
 
 
-def _factorize(a: sp.csc_matrix):
-    """Sparse LU of the interior Laplacian block.
+def factorize(a: sp.csc_matrix):
+    """Sparse LU of a Laplacian-like matrix (the interior block of a mesh Laplacian; an ARAP system).
 
     Both weightings give a matrix that needs no pivoting (mean-value: an M-matrix; cotangent: symmetric
     positive definite), so the factorization keeps the diagonal and orders by minimum degree on A^T + A:
@@ -190,7 +190,7 @@ class HarmonicMap:
         lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
         self.interior = np.setdiff1d(np.arange(len(v)), loop)
         self._coupling = lap[self.interior][:, loop]
-        self._lu = _factorize(lap[self.interior][:, self.interior].tocsc()) if len(self.interior) else None
+        self._lu = factorize(lap[self.interior][:, self.interior].tocsc()) if len(self.interior) else None
 
     def __call__(self, corner_pos: np.ndarray):
         """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from

@@ -1,0 +1,369 @@
+"""Similarity pre-alignment of two meshes that may overlap only partly.
+
+Where the elastic registration maps the whole of one surface onto the whole of the other, two scans of one object
+share only part of their area; the overlap is found in space first, which needs the pose of the second mesh in
+the first's frame. This module finds it without any start (the meshes may come in any pose and orientation):
+
+1. candidate poses: feature matching (FPFH, Rusu et al. 2009, on a voxel sample of each mesh; RANSAC over triplets
+   of matches, scored by the matches they explain), both orientations of the second mesh's normals (its faces
+   may be wound the other way), at the scales worth trying (1: two scans in the same units; the ratio of the areas:
+   the same region at another scale; a hint's); the principal axes of both meshes times the 24 rotations of the
+   cube; the identity (meshes given in one frame); a hint (e.g. the elastic registration's similarity);
+2. each refined by a trimmed ICP (point-to-plane, with scale), which drops pairs beyond a robust distance, pairs
+   whose closest point is on the other mesh's rim (the part of one scan that the other does not cover) and pairs
+   whose normals disagree;
+3. ranked by the overlap they give: the sampled area of both meshes within :data:`SCORE_DISTANCE` edge lengths of
+   the other with normals agreeing and away from its rim, then by the trimmed RMS. A wrong pose of a nearly flat
+   sheet can have a small RMS, but it puts less area within that distance than the right one.
+
+Pure numpy/scipy (and trimesh's exact closest points); deterministic (seeded).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ..search import cube_rotations
+from .surface import NORMAL_AGREEMENT, Surface, transform_normals, transform_points
+
+FEATURE_VOXEL = 0.03  # voxel of the feature sample, in units of sqrt(area) of the smaller mesh (>= 1 edge length)
+FPFH_RADIUS = 5.0  # feature radius, in voxels (Open3D's usual choice)
+FPFH_NEIGHBOURS = 60  # most neighbours per point in a feature
+FPFH_BINS = 11
+RANSAC_TRIALS = 20_000  # triplets of feature matches tried
+RANSAC_EDGE_RATIO = 0.9  # a triplet's sides must agree within this ratio on both meshes
+RANSAC_DISTANCE = 1.5  # a match is explained within this many voxels
+RANSAC_KEEP = 4  # best RANSAC poses refined per scale and orientation
+RANSAC_SEED = 0
+ICP_COARSE = 10  # ICP iterations of every candidate (COARSE_POINTS points, nearest vertices' tangent planes)
+ICP_FINE = 20  # ICP iterations of the best candidates (every sample point, with and without scale)
+ICP_EXACT = 10  # ICP iterations of the best pose against the triangles (exact closest points)
+COARSE_POINTS = 500
+ICP_TRIM = 2.5  # pairs farther than this times the median distance are dropped
+ICP_TRIM_FLOOR = 1.0  # ... but never those within this many edge lengths
+ICP_TOL = 1e-7  # ICP stops when the pose changes by less than this (relative)
+SCORE_LEVELS = (0.05, 0.25, 4.0)  # distances (edge lengths) at which poses are scored, tightest first
+SCORE_ENOUGH = 0.25  # a level ranks the poses when one of them scores this much at it (see _ranking)
+SCORE_REACH = 2.0  # scored points lie within this many times the level (>= 1 edge length) of the other's vertices
+FINALISTS = 3  # candidates refined on every sample point
+SCALE_TIE = 0.05  # scales within this log ratio of one another are tried once
+POINT_WEIGHT = 0.0  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
+ICP_VOXEL = 0.03  # voxel of the ICP samples, in units of sqrt(area) of each mesh (>= 1 edge length)
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """A pose of the second mesh in the first's frame.
+
+    Attributes
+    ----------
+    matrix : ndarray, shape (4, 4)
+        The similarity x -> s R x + b moving the second mesh's points into the first's frame.
+    rms : float
+        Root mean square distance of the kept ICP pairs (first's units).
+    scores : tuple of float
+        :func:`overlap_scores` at each of SCORE_LEVELS.
+    source : str
+        The candidate it was refined from ("features", "principal axes", "identity", "hint").
+    """
+
+    matrix: np.ndarray
+    rms: float
+    scores: tuple
+    source: str
+
+    @property
+    def scale(self) -> float:
+        """s of the similarity."""
+        return float(np.cbrt(np.linalg.det(self.matrix[:3, :3])))
+
+
+@dataclass
+class Cloud:
+    """Points (k, 3) with unit normals (k, 3)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+
+    def moved(self, matrix: np.ndarray) -> Cloud:
+        return Cloud(transform_points(matrix, self.points), transform_normals(matrix, self.normals))
+
+
+def voxel_sample(surface: Surface, voxel: float) -> Cloud:
+    """The mean vertex and mean normal of each occupied voxel of side ``voxel``."""
+    keys = np.floor((surface.vertices - surface.vertices.min(axis=0)) / voxel).astype(np.int64)
+    _, label = np.unique(keys, axis=0, return_inverse=True)
+    label = label.ravel()
+    count = np.bincount(label)
+    points = np.stack([np.bincount(label, surface.vertices[:, k]) for k in range(3)], axis=1) / count[:, None]
+    normals = np.stack([np.bincount(label, surface.normals[:, k]) for k in range(3)], axis=1)
+    norm = np.linalg.norm(normals, axis=1, keepdims=True)
+    ok = norm[:, 0] > 0
+    return Cloud(points[ok], normals[ok] / norm[ok])
+
+
+def fpfh(cloud: Cloud, radius: float) -> np.ndarray:
+    """Fast point feature histograms (k, 33) of a cloud with normals (Rusu, Blodow & Beetz 2009; as Open3D
+    computes them: 11 bins per angle, neighbours within ``radius``, weights 1 / squared distance)."""
+    p, n = cloud.points, cloud.normals
+    if len(p) < 2:  # a mesh about one voxel across: no neighbours, empty histograms
+        return np.zeros((len(p), 3 * FPFH_BINS))
+    k = min(FPFH_NEIGHBOURS + 1, len(p))
+    dist, idx = cKDTree(p).query(p, k=k, distance_upper_bound=radius)
+    valid = np.isfinite(dist) & (dist > 0)
+    idx = np.where(valid, idx, 0)
+    dp = p[idx] - p[:, None, :]
+    d = np.maximum(np.linalg.norm(dp, axis=-1), 1e-300)
+    n1, n2 = np.broadcast_to(n[:, None, :], dp.shape), n[idx]
+    a1, a2 = np.sum(n1 * dp, -1) / d, np.sum(n2 * dp, -1) / d
+    swap = np.abs(a1) < np.abs(a2)  # the source is the point whose normal is closer to the line between them
+    s_n = np.where(swap[..., None], n2, n1)
+    t_n = np.where(swap[..., None], n1, n2)
+    line = np.where(swap[..., None], -dp, dp) / d[..., None]
+    f3 = np.where(swap, -a2, a1)
+    v = np.cross(line, s_n)
+    v_norm = np.linalg.norm(v, axis=-1)
+    valid &= v_norm > 1e-12
+    v /= np.maximum(v_norm, 1e-300)[..., None]
+    w = np.cross(s_n, v)
+    f2 = np.sum(v * t_n, -1)
+    f1 = np.arctan2(np.sum(w * t_n, -1), np.sum(s_n * t_n, -1))
+    bins = [
+        np.clip(np.floor(FPFH_BINS * (f1 + np.pi) / (2 * np.pi)), 0, FPFH_BINS - 1),
+        np.clip(np.floor(FPFH_BINS * (f2 + 1) * 0.5), 0, FPFH_BINS - 1),
+        np.clip(np.floor(FPFH_BINS * (f3 + 1) * 0.5), 0, FPFH_BINS - 1),
+    ]
+    count = np.maximum(valid.sum(axis=1), 1)
+    spfh = np.zeros((len(p), 3 * FPFH_BINS))
+    rows = np.broadcast_to(np.arange(len(p))[:, None], valid.shape)
+    for j, b in enumerate(bins):
+        np.add.at(spfh, (rows[valid], (j * FPFH_BINS + b[valid]).astype(np.int64)), (100.0 / count[rows[valid]]))
+    weight = np.where(valid, 1.0 / np.maximum(d**2, 1e-300), 0.0)
+    neighbours = np.einsum("kn,knb->kb", weight, spfh[idx])
+    sums = neighbours.reshape(len(p), 3, FPFH_BINS).sum(axis=2)
+    scale = np.divide(100.0, sums, out=np.zeros_like(sums), where=sums > 0)
+    return spfh + (neighbours.reshape(len(p), 3, FPFH_BINS) * scale[:, :, None]).reshape(len(p), -1)
+
+
+def _kabsch_batch(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Rigid 4 x 4 matrices (t, 4, 4) taking point triplets p (t, 3, 3) onto q (t, 3, 3) in least squares."""
+    pc, qc = p.mean(axis=1, keepdims=True), q.mean(axis=1, keepdims=True)
+    h = np.einsum("tki,tkj->tij", p - pc, q - qc)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("tji,tkj->tik", vt, u)))
+    d[d == 0] = 1.0
+    fix = np.ones((len(p), 3))
+    fix[:, 2] = d
+    rot = np.einsum("tji,tj,tkj->tik", vt, fix, u)
+    out = np.tile(np.eye(4), (len(p), 1, 1))
+    out[:, :3, :3] = rot
+    out[:, :3, 3] = qc[:, 0] - np.einsum("tij,tj->ti", rot, pc[:, 0])
+    return out
+
+
+def ransac_poses(source: Cloud, target: Cloud, f_source, f_target, voxel: float, rng) -> list[np.ndarray]:
+    """Rigid poses (4 x 4) of ``source`` in ``target``'s frame from feature matches: the RANSAC_KEEP distinct
+    poses explaining the most matches (mutual nearest features) within RANSAC_DISTANCE voxels."""
+    nearest_t = cKDTree(f_target).query(f_source)[1]
+    nearest_s = cKDTree(f_source).query(f_target)[1]
+    mutual = nearest_s[nearest_t] == np.arange(len(f_source))
+    src_idx = np.flatnonzero(mutual) if mutual.sum() >= 10 else np.arange(len(f_source))
+    ps, pt = source.points[src_idx], target.points[nearest_t[src_idx]]
+    if len(ps) < 3:
+        return []
+    picks = rng.integers(0, len(ps), size=(RANSAC_TRIALS, 3))
+    a, b = ps[picks], pt[picks]
+    sides_a = np.linalg.norm(a - np.roll(a, 1, axis=1), axis=-1)
+    sides_b = np.linalg.norm(b - np.roll(b, 1, axis=1), axis=-1)
+    ratio = np.minimum(sides_a, sides_b) / np.maximum(np.maximum(sides_a, sides_b), 1e-300)
+    good = np.all(ratio > RANSAC_EDGE_RATIO, axis=1) & np.all(sides_a > 2 * voxel, axis=1)
+    if not good.any():
+        return []
+    poses = _kabsch_batch(a[good], b[good])
+    limit = (RANSAC_DISTANCE * voxel) ** 2
+    counts = np.empty(len(poses), dtype=np.int64)
+    for start in range(0, len(poses), 1000):
+        chunk = poses[start : start + 1000]
+        moved = np.einsum("tij,kj->tki", chunk[:, :3, :3], ps) + chunk[:, None, :3, 3]
+        counts[start : start + 1000] = np.sum(np.sum((moved - pt) ** 2, axis=-1) < limit, axis=1)
+    kept = []
+    for i in np.argsort(-counts, kind="stable"):
+        if len(kept) == RANSAC_KEEP or counts[i] < 3:
+            break
+        if all(not _same_pose(poses[i], k, voxel) for k in kept):
+            kept.append(poses[i])
+    return kept
+
+
+def _same_pose(m1: np.ndarray, m2: np.ndarray, voxel: float) -> bool:
+    angle = np.degrees(np.arccos(np.clip((np.trace(m1[:3, :3] @ m2[:3, :3].T) - 1) / 2, -1, 1)))
+    return angle < 5.0 and np.linalg.norm(m1[:3, 3] - m2[:3, 3]) < 3 * voxel
+
+
+def rigid_step(x, n, p) -> np.ndarray:
+    """The small rigid motion (4 x 4) that best moves points x (k, 3) onto the planes through p (k, 3) with unit
+    normals n (k, 3): linearized point-to-plane least squares in (rotation vector, shift) about x's centroid, plus
+    POINT_WEIGHT^2 times the point-to-point distances, which fix what the planes leave free."""
+    c = x.mean(axis=0)
+    xc = x - c
+    k = len(x)
+    plane = np.hstack([np.cross(xc, n), n])  # n . (x - p) + omega . (xc x n) + n . t
+    a = plane.T @ plane
+    b = -plane.T @ np.sum(n * (x - p), axis=1)
+    skew = np.zeros((k, 3, 3))  # omega x xc = -[xc]_x omega, per axis
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = xc[:, 2], -xc[:, 1], xc[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -xc[:, 2], xc[:, 1], -xc[:, 0]
+    point = np.concatenate([skew, np.broadcast_to(np.eye(3), (k, 3, 3))], axis=2).reshape(-1, 6)
+    a += POINT_WEIGHT**2 * point.T @ point
+    b += POINT_WEIGHT**2 * point.T @ (-(x - p)).ravel()
+    sol = np.linalg.solve(a + 1e-12 * np.trace(a) * np.eye(6), b)
+    rot = Rotation.from_rotvec(sol[:3]).as_matrix()
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = c + sol[3:] - rot @ c
+    return out
+
+
+def icp(
+    source: Cloud,
+    target: Surface,
+    matrix: np.ndarray,
+    *,
+    iterations: int = ICP_COARSE,
+    exact: bool = False,
+) -> tuple[np.ndarray, float]:
+    """Trimmed point-to-plane ICP (rigid: the scale of ``matrix`` is kept) of ``source`` (in its own frame) onto
+    ``target`` from ``matrix``.
+
+    Each iteration pairs every moved point with the target's nearest vertex (its tangent plane) or, with ``exact``,
+    its closest point on the triangles; drops pairs farther than ICP_TRIM times the median distance (but keeps those
+    within ICP_TRIM_FLOOR edge lengths), pairs on the target's rim and pairs whose normals disagree; and applies the
+    rigid motion that best closes the rest. Returns the matrix and the RMS distance of the pairs kept last.
+    """
+    rms = np.inf
+    for _ in range(iterations):
+        moved = source.moved(matrix)
+        if exact:
+            p, dist, n = target.closest(moved.points)
+            on_rim = target.rim_distance(p) < 1e-9 * target.edge
+        else:
+            dist, j = target.tree.query(moved.points)
+            p, n, on_rim = target.vertices[j], target.normals[j], target.rim[j]
+        limit = max(ICP_TRIM * float(np.median(dist)), ICP_TRIM_FLOOR * target.edge)
+        keep = (dist <= limit) & ~on_rim & (np.abs(np.sum(moved.normals * n, axis=1)) >= NORMAL_AGREEMENT)
+        if keep.sum() < 6:
+            return matrix, np.inf
+        rms = float(np.sqrt(np.mean(dist[keep] ** 2)))
+        step = rigid_step(moved.points[keep], n[keep], p[keep])
+        matrix = step @ matrix
+        change = np.linalg.norm(step - np.eye(4))
+        if change < ICP_TOL:
+            break
+    return matrix, rms
+
+
+def overlap_scores(first: Cloud, first_surface: Surface, second: Cloud, second_surface: Surface, matrix) -> np.ndarray:
+    """How well the second mesh, moved by ``matrix``, and the first overlap, at each distance of SCORE_LEVELS: for
+    each mesh, the mean over its sample points of 1 - (d / t)^2 (0 beyond t), d the distance to the other's nearest
+    tangent plane and t the level times the other's edge length, counting only points within SCORE_REACH times the
+    level of the other's nearest vertex, away from its rim, with normals agreeing; the smaller of the two means.
+    Large overlaps that coincide closely score high; a pose that leaves one mesh mostly off the other scores low
+    whatever its RMS. Shape (len(SCORE_LEVELS),)."""
+    inverse = np.linalg.inv(matrix)
+    levels = np.asarray(SCORE_LEVELS)
+    scores = []
+    for cloud, surface, m in ((second, first_surface, matrix), (first, second_surface, inverse)):
+        moved = cloud.moved(m)
+        dist, j = surface.tree.query(moved.points)
+        normal = surface.normals[j]
+        plane = np.abs(np.sum(normal * (moved.points - surface.vertices[j]), axis=1))
+        valid = ~surface.rim[j] & (np.abs(np.sum(moved.normals * normal, axis=1)) >= NORMAL_AGREEMENT)
+        t = levels[:, None] * surface.edge
+        near = valid & (dist <= SCORE_REACH * np.maximum(t, surface.edge))
+        scores.append(np.mean(np.where(near, np.maximum(0.0, 1.0 - (plane / t) ** 2), 0.0), axis=1))
+    return np.minimum(*scores)
+
+
+def _ranking(scores: np.ndarray) -> np.ndarray:
+    """Which level of SCORE_LEVELS ranks a set of candidates (rows of ``scores``): the tightest at which one of
+    them scores at least SCORE_ENOUGH (the same surface: the right pose coincides closely), else the loosest (a
+    deformed pair: no pose coincides, the right one comes closest over the largest area)."""
+    enough = np.flatnonzero(scores.max(axis=0) >= SCORE_ENOUGH)
+    return int(enough[0]) if len(enough) else len(SCORE_LEVELS) - 1
+
+
+def principal_frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid (3,) and principal axes (3, 3) (columns, decreasing variance, right-handed) of points."""
+    c = points.mean(axis=0)
+    _, vecs = np.linalg.eigh((points - c).T @ (points - c))
+    axes = vecs[:, ::-1]
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1
+    return c, axes
+
+
+def _similarity(rotation: np.ndarray, scale: float, source_point: np.ndarray, target_point: np.ndarray):
+    out = np.eye(4)
+    out[:3, :3] = scale * rotation
+    out[:3, 3] = target_point - scale * rotation @ source_point
+    return out
+
+
+def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Alignment:
+    """The pose of ``second`` in ``first``'s frame that overlaps them best (see the module docstring).
+
+    Parameters
+    ----------
+    first, second : Surface
+    hint : ndarray (4, 4), optional
+        A similarity taking the second mesh into the first's frame (e.g. the inverse of the elastic registration's
+        :attr:`~meshreg.result.Registration.transform`): one more candidate, and its scale one more scale.
+    """
+    rng = np.random.default_rng(RANSAC_SEED)
+    scales = [1.0, float(np.sqrt(first.area / second.area))]
+    if hint is not None:
+        scales.append(float(np.cbrt(abs(np.linalg.det(hint[:3, :3])))))
+    scales = [s for i, s in enumerate(scales) if all(abs(np.log(s / t)) > SCALE_TIE for t in scales[:i])]
+    candidates = []  # (matrix, source)
+    for s in scales:
+        voxel = max(FEATURE_VOXEL * np.sqrt(min(first.area, s * s * second.area)), first.edge, s * second.edge)
+        sample1 = voxel_sample(first, voxel)
+        sample2 = voxel_sample(second, voxel / s)
+        shrink = _similarity(np.eye(3), s, np.zeros(3), np.zeros(3))
+        sample2s = sample2.moved(shrink)
+        f1 = fpfh(sample1, FPFH_RADIUS * voxel)
+        for flip in (1.0, -1.0):
+            flipped = Cloud(sample2s.points, flip * sample2s.normals)
+            f2 = fpfh(flipped, FPFH_RADIUS * voxel)
+            for pose in ransac_poses(flipped, sample1, f2, f1, voxel, rng):
+                candidates.append((pose @ shrink, "features"))
+        c1, axes1 = principal_frame(sample1.points)
+        c2, axes2 = principal_frame(sample2.points)
+        for rot in cube_rotations():
+            candidates.append((_similarity(axes1 @ rot @ axes2.T, s, c2, c1), "principal axes"))
+    candidates.append((np.eye(4), "identity"))
+    if hint is not None:
+        candidates.append((np.asarray(hint, dtype=float), "hint"))
+    cloud1 = voxel_sample(first, max(ICP_VOXEL * np.sqrt(first.area), first.edge))
+    cloud2 = voxel_sample(second, max(ICP_VOXEL * np.sqrt(second.area), second.edge))
+    coarse = _subsample(cloud2, COARSE_POINTS, rng)
+    poses = [icp(coarse, first, matrix)[0] for matrix, _ in candidates]
+    scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m in poses])
+    order = np.argsort(-scores[:, _ranking(scores)], kind="stable")[:FINALISTS]
+    finals = [icp(cloud2, first, poses[k], iterations=ICP_FINE)[0] for k in order]
+    scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m in finals])
+    best = int(np.argmax(scores[:, _ranking(scores)]))
+    matrix, rms = icp(cloud2, first, finals[best], iterations=ICP_EXACT, exact=True)
+    scores = overlap_scores(cloud1, first, cloud2, second, matrix)
+    return Alignment(matrix, rms, tuple(float(x) for x in scores), candidates[order[best]][1])
+
+
+def _subsample(cloud: Cloud, count: int, rng) -> Cloud:
+    if len(cloud.points) <= count:
+        return cloud
+    pick = np.sort(rng.choice(len(cloud.points), count, replace=False))
+    return Cloud(cloud.points[pick], cloud.normals[pick])

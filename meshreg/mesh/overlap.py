@@ -1,0 +1,411 @@
+"""Where two meshes overlap, and each trimmed to that common region with boundaries that correspond.
+
+With the second mesh posed in the first's frame (:mod:`meshreg.mesh.align`; bent onto it by
+:mod:`meshreg.mesh.warp` when no pose makes them coincide), every vertex of each mesh gets a signed distance to the
+other's rim: its closest point on the other mesh is inside (positive: the distance from that point to the other's
+rim) or on the rim (negative: the tangential gap to it). The common region of each mesh is where that distance is
+not negative; both meshes are cut along its zero line (triangles split, not dropped whole), so that the two trimmed
+boundaries are the same curve of the surface: the first's trimmed boundary runs along the second's rim and its own,
+and the other way round.
+
+The verdict (:class:`Overlap`.regime):
+
+- ``"full"``: each mesh's part beyond the other's rim is at most FULL_TOLERANCE (of the regime) of its area; the
+  meshes cover the same region and are registered whole, as without this module;
+- ``"rigid"``: they overlap partly and a rigid pose makes them coincide (the same surface, two scans);
+- ``"elastic"``: they overlap partly and only the warp makes them coincide (a bent scan);
+- ``"whole"``: the overlap is not trusted, and the meshes are registered whole: neither the pose nor the warp makes
+  them coincide over the overlap (different shapes, or a deformation the warp cannot follow); or the relief does
+  not pin the pose (a surface of revolution, a ridge, a flat sheet: a rigid motion slides the meshes along each
+  other, and only their rims tell where they are); or only the warp does and the pose changes their scale (a
+  deformed pair in different units: a stretched or bent copy of the whole cannot be told from a partial one, so the
+  meshes' own units are taken as the evidence of a partial overlap).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..rotation import kabsch
+from .align import Alignment, align
+from .surface import Surface, transform_points
+from .topology import DiskMesh, prepare_disk, triangle_areas
+from .warp import arap_warp
+
+RIM_EPSILON = 1e-6  # a closest point within this many edge lengths of the rim lies on it
+BAND = 3.0  # signed distances are exact within this many edge lengths of the other's rim
+STATISTICS_SAMPLE = 3000  # vertices farther inside whose distance to the other mesh is measured (RMS, coincidence)
+SNAP = 0.1  # signed distances within this many edge lengths of 0 are set to 0 (no slivers at the cut)
+COINCIDE = 1.0  # vertices within this many edge lengths of the other mesh coincide with it
+COINCIDE_ENOUGH = 0.9  # the overlap is trusted when this fraction of it coincides (area)
+TIGHT = 0.05  # a pose whose RMS over the overlap is below this many edge lengths needs no warp
+RIGID_RATIO = 1.5  # the pose is kept (regime "rigid") when its RMS is within this factor of the warp's
+# the meshes cover the same region when each has at most this fraction of its area beyond the other's rim, by regime:
+# a warp places the rims less precisely than a rigid pose
+FULL_TOLERANCE = {"rigid": 0.02, "elastic": 0.05}
+SAME_SCALE = 0.05  # a pose within this log ratio of scale 1 keeps the meshes' units
+# a same-surface pose is trusted when the relief pins it: the rigid motion that raises the RMS distance over the
+# overlap by the pose's own RMS (the fit's noise) moves points by at most this many edge lengths (:func:`slide`).
+# Measured: 1.6 on two random triangulations of a sheet with a centred round bump (the pose had turned 7 degrees
+# about it); 0.9 with a bump on an axis (the pose right within 0.4 degrees); 0.2-0.6 on the benchmark's partial
+# terrain sheets and face scan crops (poses exact); 0 on exact copies
+PINNED = 1.0
+
+
+@dataclass(frozen=True)
+class Side:
+    """One mesh's view of the overlap.
+
+    Attributes
+    ----------
+    signed : ndarray, shape (n,)
+        Per disk vertex, the signed distance to the other mesh's rim (first's units; positive inside).
+    distance : ndarray, shape (n,)
+        Per disk vertex, the distance to the other mesh (first's units); NaN where it was not measured (see
+        :func:`signed_rim_distance`).
+    fraction : float
+        Fraction of the mesh's area where ``signed`` >= 0 (triangles cut along its zero line).
+    """
+
+    signed: np.ndarray
+    distance: np.ndarray
+    fraction: float
+
+
+@dataclass(frozen=True)
+class Overlap:
+    """Where two meshes overlap (see the module docstring).
+
+    Attributes
+    ----------
+    regime : {"full", "rigid", "elastic", "whole", "deformed"}
+    first, second : Side
+    alignment : Alignment
+        The pose of the second mesh in the first's frame.
+    positions : ndarray, shape (n2, 3)
+        The second disk's vertices in the first's frame: posed, and bent by the warp in the "elastic" regime.
+    edge : float
+        The pair's edge length (the coarser mesh's median edge, first's units).
+    rms : dict
+        RMS distance over the overlap of the pose ("rigid") and, when it was tried, of the warp ("warp").
+    coincide : float
+        Fraction of the overlap's vertices within COINCIDE edge lengths of the other mesh.
+    slide : float
+        :func:`slide` of the pose over the overlap, in edge lengths (NaN for a warp: not judged).
+    seconds : float
+        Time taken to find it.
+    reason : str
+        Why the meshes are registered whole although they may not cover the same region (regime "whole").
+    """
+
+    regime: str
+    first: Side
+    second: Side
+    alignment: Alignment
+    positions: np.ndarray
+    edge: float
+    rms: dict = field(default_factory=dict)
+    coincide: float = float("nan")
+    slide: float = float("nan")
+    seconds: float = 0.0
+    reason: str = ""
+
+    def summary(self) -> dict:
+        """The overlap as plain values (for ``result.info``)."""
+        return {
+            "regime": self.regime,
+            "reason": self.reason,
+            "first_fraction": self.first.fraction,
+            "second_fraction": self.second.fraction,
+            "coincide": self.coincide,
+            "slide": self.slide,
+            "rms": dict(self.rms),
+            "edge": self.edge,
+            "scale": self.alignment.scale,
+            "pose_source": self.alignment.source,
+            "pose": self.alignment.matrix.tolist(),
+            "seconds": self.seconds,
+            "parameters": parameters(),
+        }
+
+
+def parameters() -> dict:
+    """The numerics of the pose, the overlap and the warp (module constants), as recorded with each result."""
+    from . import align, warp
+
+    names = {
+        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH"),
+        warp: ("WARP_WEIGHTS", "WARP_ROUNDS", "WARP_TRIM", "WARP_TRIM_FLOOR"),
+    }
+    out = {name: getattr(module, name) for module, keys in names.items() for name in keys}
+    local = ("SNAP", "BAND", "COINCIDE", "COINCIDE_ENOUGH", "TIGHT", "RIGID_RATIO", "FULL_TOLERANCE", "SAME_SCALE")
+    local += ("PINNED",)
+    out.update({name: globals()[name] for name in local})
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
+
+
+def signed_rim_distance(points: np.ndarray, other: Surface) -> tuple[np.ndarray, np.ndarray]:
+    """Per point (k, 3): the signed distance to ``other``'s rim (positive: the closest point on ``other`` is
+    inside, by its distance to the rim; negative: it is on the rim, by the tangential gap) and the distance to
+    ``other``.
+
+    Exact (closest points on the triangles) for points whose nearest vertex of ``other`` lies within BAND edge
+    lengths of its rim, and for a sample of STATISTICS_SAMPLE others; the rest, deep inside, take their nearest
+    vertex's distance to the rim (only the sign matters there) and a NaN distance."""
+    points = np.asarray(points, dtype=float)
+    _, nearest = other.tree.query(points)
+    vertex_rim = other.vertex_rim_distance[nearest]
+    exact = vertex_rim <= BAND * other.edge
+    inner = np.flatnonzero(~exact)
+    if len(inner) > STATISTICS_SAMPLE:
+        inner = np.random.default_rng(0).choice(inner, STATISTICS_SAMPLE, replace=False)
+    exact[inner] = True
+    signed, distance = vertex_rim.copy(), np.full(len(points), np.nan)
+    closest, distance[exact], normal = other.closest(points[exact])
+    rim = other.rim_distance(closest)
+    gap = points[exact] - closest
+    tangential = np.linalg.norm(gap - np.sum(gap * normal, axis=1, keepdims=True) * normal, axis=1)
+    signed[exact] = np.where(rim <= RIM_EPSILON * other.edge, -tangential, rim)
+    return signed, distance
+
+
+@dataclass(frozen=True)
+class Clipped:
+    """A mesh cut along the zero line of a per-vertex function, keeping where it is >= 0.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (k, 3)
+    faces : ndarray, shape (f, 3)
+    carry : scipy.sparse matrix, shape (k, n)
+        Per-vertex values of the mesh as given carried to the clipped vertices (``carry @ values``): kept vertices
+        copy theirs, cut points interpolate along their edge.
+    parent : ndarray, shape (k,)
+        The vertex each clipped vertex is (-1 for a cut point).
+    face_parent : ndarray, shape (f,)
+        The triangle each clipped triangle comes from.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    carry: sp.csr_matrix
+    parent: np.ndarray
+    face_parent: np.ndarray
+
+
+def clip(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray) -> Clipped:
+    """Cut a triangle mesh along the zero line of ``values`` (n,) (linear in each triangle) and keep the part where
+    they are >= 0: triangles wholly there kept, those across the line split, the rest dropped."""
+    n = len(vertices)
+    pos = values > 0
+    neg = values < 0
+    keep_whole = ~neg[faces].any(axis=1) & pos[faces].any(axis=1)
+    across = neg[faces].any(axis=1) & pos[faces].any(axis=1)
+    new_faces, face_parent = [faces[keep_whole]], [np.flatnonzero(keep_whole)]
+    cut_index: dict = {}
+    cut_rows: list = []
+
+    def cut(a: int, b: int) -> int:
+        key = (min(a, b), max(a, b))
+        if key not in cut_index:
+            t = values[key[0]] / (values[key[0]] - values[key[1]])
+            cut_index[key] = n + len(cut_rows)
+            cut_rows.append((key[0], key[1], t))
+        return cut_index[key]
+
+    for f in np.flatnonzero(across):
+        corners = faces[f]
+        polygon = []
+        for k in range(3):
+            a, b = int(corners[k]), int(corners[(k + 1) % 3])
+            if values[a] >= 0:
+                polygon.append(a)
+            if (values[a] > 0 and values[b] < 0) or (values[a] < 0 and values[b] > 0):
+                polygon.append(cut(a, b))
+        for k in range(1, len(polygon) - 1):
+            new_faces.append(np.array([[polygon[0], polygon[k], polygon[k + 1]]]))
+            face_parent.append(np.array([f]))
+    faces_out = np.vstack(new_faces).astype(np.int64)
+    rows = np.array(cut_rows, dtype=float).reshape(-1, 3)
+    a, b, t = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int64), rows[:, 2]
+    k = len(rows)
+    carry = sp.vstack(
+        [
+            sp.identity(n, format="csr"),
+            sp.csr_matrix((np.r_[1 - t, t], (np.r_[np.arange(k), np.arange(k)], np.r_[a, b])), shape=(k, n)),
+        ]
+    ).tocsr()
+    used = np.unique(faces_out)
+    remap = np.full(n + k, -1)
+    remap[used] = np.arange(len(used))
+    parent = np.r_[np.arange(n), np.full(k, -1)][used]
+    all_vertices = carry @ np.asarray(vertices, dtype=float)
+    return Clipped(all_vertices[used], remap[faces_out], carry[used], parent, np.concatenate(face_parent))
+
+
+def area_fraction(disk: DiskMesh, values: np.ndarray) -> float:
+    """Fraction of a disk's area (its triangles as given: hole-filling fans left out) where ``values`` >= 0."""
+    original = np.all(disk.faces < len(disk.vertex_map), axis=1)
+    total = triangle_areas(disk.vertices, disk.faces[original]).sum()
+    clipped = clip(disk.vertices, disk.faces, values)
+    kept = original[clipped.face_parent]
+    return float(triangle_areas(clipped.vertices, clipped.faces[kept]).sum() / total)
+
+
+def snapped(values: np.ndarray, edge: float) -> np.ndarray:
+    """Signed distances with those within SNAP edge lengths of 0 set to 0."""
+    return np.where(np.abs(values) < SNAP * edge, 0.0, values)
+
+
+def _side(points: np.ndarray, disk: DiskMesh, other: Surface, edge: float) -> Side:
+    signed, distance = signed_rim_distance(points, other)
+    signed = snapped(signed, edge)
+    return Side(signed, distance, area_fraction(disk, signed))
+
+
+def _coincidence(first: Side, second: Side, edge: float) -> tuple[float, float]:
+    """RMS distance to the other mesh over both overlaps' vertices, and the fraction within COINCIDE edges."""
+    d = np.r_[first.distance[first.signed >= 0], second.distance[second.signed >= 0]]
+    d = d[np.isfinite(d)]
+    if len(d) == 0:
+        return np.inf, 0.0
+    return float(np.sqrt(np.mean(d**2))), float(np.mean(d <= COINCIDE * edge))
+
+
+def slide(surface: Surface, keep: np.ndarray, rms: float) -> float:
+    """How far a rigid motion can slide a surface's vertices ``keep`` (bool, (n,)) along the surface while raising
+    their RMS distance to it by only ``rms`` (first's units): ``rms / sqrt(lambda_min)``, lambda_min the smallest
+    eigenvalue of the point-to-plane normal matrix (rows ``[x cross n, n]`` per point, mean over the points, x
+    centred and scaled to unit RMS radius, so a turn is measured by how far it moves points at that radius). Large
+    when the relief leaves a motion free (a turn about a surface of revolution, a shift along a ridge, any motion
+    in the plane of a flat sheet); 0 for an exact fit."""
+    points, normals = surface.vertices[keep], surface.normals[keep]
+    if len(points) < 6:
+        return np.inf
+    points = points - points.mean(axis=0)
+    points = points / max(float(np.sqrt(np.mean(np.sum(points**2, axis=1)))), 1e-300)
+    rows = np.hstack([np.cross(points, normals), normals])
+    weakest = float(np.linalg.eigvalsh(rows.T @ rows / len(rows))[0])
+    return float(rms / np.sqrt(weakest)) if weakest > 0 else np.inf
+
+
+def _sides(first: DiskMesh, second: DiskMesh, target: Surface, positions: np.ndarray, edge: float):
+    """Both sides of the overlap with the second's vertices at ``positions`` in the first's frame, the RMS distance
+    over the overlap and the fraction that coincides."""
+    one = _side(first.vertices, first, Surface(positions, second.faces), edge)
+    two = _side(positions, second, target, edge)
+    return one, two, *_coincidence(one, two, edge)
+
+
+def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, slid: float) -> tuple[str, str]:
+    """The regime (and why the meshes are registered whole, if they are) of an overlap found at a pose ("rigid",
+    whose :func:`slide` is ``slid`` edge lengths) or with the warp ("elastic")."""
+    tolerance = FULL_TOLERANCE[regime]
+    if coincide < COINCIDE_ENOUGH:
+        return "whole", "no pose or warp makes the meshes coincide where they overlap"
+    if one.fraction >= 1 - tolerance and two.fraction >= 1 - tolerance:
+        return "full", ""
+    if regime == "rigid" and not slid <= PINNED:
+        return "whole", "the relief does not pin the pose: the meshes slide along each other"
+    if regime == "elastic" and abs(np.log(scale)) > SAME_SCALE:
+        return "whole", "a deformed pair at different scales: its overlap is not judged"
+    return regime, ""
+
+
+def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
+    """Pose the second mesh in the first's frame (:func:`meshreg.mesh.align.align`) and find where they overlap at
+    that pose. Regime "full" or "rigid" when the pose makes them coincide (RMS over the overlap below TIGHT edge
+    lengths); else "deformed": the warp of :func:`warped_overlap` decides."""
+    start = time.perf_counter()
+    s1, s2 = Surface(first.vertices, first.faces), Surface(second.vertices, second.faces)
+    alignment = align(s1, s2)
+    edge = max(s1.edge, alignment.scale * s2.edge)
+    posed = transform_points(alignment.matrix, second.vertices)
+    one, two, rms, coincide = _sides(first, second, s1, posed, edge)
+    slid = slide(s1, one.signed >= 0, rms) / edge
+    tight = rms <= TIGHT * edge
+    regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid) if tight else ("deformed", "")
+    seconds = time.perf_counter() - start
+    return Overlap(regime, one, two, alignment, posed, edge, {"pose": rms}, coincide, slid, seconds, reason)
+
+
+def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray) -> Overlap:
+    """The overlap of a pair that no pose makes coincide (``posed``, regime "deformed"), from an
+    as-rigid-as-possible warp of the second mesh onto the first (:func:`meshreg.mesh.warp.arap_warp`).
+
+    The warp starts from the pose that fits the second (at the scale of ``posed``) onto ``matches``, its vertices'
+    matches on the first by the elastic registration of the whole meshes: that pose centres a bent mesh where a
+    rigid fit settles on one side. When the warp does not bring the meshes much closer than the pose (RMS within
+    RIGID_RATIO), the pose stands (regime "rigid": noise, not deformation).
+
+    Parameters
+    ----------
+    first, second : DiskMesh
+    posed : Overlap
+        :func:`rigid_overlap` of the two.
+    matches : ndarray, shape (n2, 3)
+        Per vertex of the second disk, its matched point on the first (NaN: none).
+    """
+    start = time.perf_counter()
+    target = Surface(first.vertices, first.faces)
+    scale = posed.alignment.scale
+    rest = scale * second.vertices
+    known = np.all(np.isfinite(matches), axis=1)
+    c0, c1 = rest[known].mean(axis=0), matches[known].mean(axis=0)
+    rotation = kabsch((rest[known] - c0).T @ (matches[known] - c1))
+    warped = arap_warp((rest - c0) @ rotation.T + c1, second.faces, target)
+    one, two, rms, coincide = _sides(first, second, target, warped, posed.edge)
+    rms_all = {**posed.rms, "warp": rms}
+    slid = posed.slide
+    if posed.rms["pose"] <= RIGID_RATIO * rms:
+        one, two, coincide, positions = posed.first, posed.second, posed.coincide, posed.positions
+        regime, reason = _verdict("rigid", one, two, coincide, scale, slid)
+    else:
+        regime, reason = _verdict("elastic", one, two, coincide, scale, slid)
+        positions = warped
+        slid = float("nan")
+    seconds = posed.seconds + time.perf_counter() - start
+    return Overlap(regime, one, two, posed.alignment, positions, posed.edge, rms_all, coincide, slid, seconds, reason)
+
+
+def trim(disk: DiskMesh, signed: np.ndarray) -> tuple[DiskMesh, sp.csr_matrix]:
+    """The disk cut to where ``signed`` >= 0, cleaned into a disk (largest piece, holes filled), its vertices that
+    come from the disk as given first (in the order of their input ids, so that :meth:`DiskMesh.to_input` and
+    :meth:`DiskMesh.input_ids` keep working), then cut points and hole-filling vertices.
+
+    Returns the trimmed disk and the matrix (k, n) carrying per-vertex values of ``disk`` to its vertices (a
+    hole-filling vertex gets the mean of its ring)."""
+    clipped = clip(disk.vertices, disk.faces, signed)
+    piece = prepare_disk(clipped.vertices, clipped.faces)
+    k = len(piece.vertex_map)
+    carry = clipped.carry[piece.vertex_map]
+    if len(piece.vertices) > k:  # hole-filling vertices: the mean of their ring
+        rows, cols = [], []
+        for v in range(k, len(piece.vertices)):
+            ring = np.unique(piece.faces[np.any(piece.faces == v, axis=1)])
+            ring = ring[ring < k]
+            rows += [v - k] * len(ring)
+            cols += ring.tolist()
+        counts = np.bincount(rows, minlength=len(piece.vertices) - k)
+        fill = sp.csr_matrix((1.0 / counts[rows], (rows, cols)), shape=(len(piece.vertices) - k, k)) @ carry
+        carry = sp.vstack([carry, fill]).tocsr()
+    parent = np.full(len(piece.vertices), -1)
+    parent[:k] = clipped.parent[piece.vertex_map]
+    known = (parent >= 0) & (parent < len(disk.vertex_map))
+    input_id = np.where(known, disk.vertex_map[np.clip(parent, 0, len(disk.vertex_map) - 1)], -1)
+    order = np.r_[np.flatnonzero(known)[np.argsort(input_id[known], kind="stable")], np.flatnonzero(~known)]
+    inverse = np.argsort(order)
+    report = [f"kept the overlap: {len(order)} vertices ({int(known.sum())} of the mesh's)", *piece.report]
+    trimmed = DiskMesh(
+        piece.vertices[order],
+        inverse[piece.faces],
+        inverse[piece.boundary],
+        input_id[order][: int(known.sum())],
+        report,
+        disk.aliases,
+    )
+    return trimmed, carry[order]

@@ -1,0 +1,98 @@
+"""As-rigid-as-possible warp of one mesh onto another that it overlaps (a non-rigid ICP).
+
+A bent scan cannot be brought onto the other by any similarity: only a strip of it coincides, and where the two
+overlap is then unclear. This module bends the second mesh onto the first while keeping its triangles' shapes
+(ARAP: Sorkine & Alexa 2007; the data term pulls each vertex towards the first mesh's tangent plane at its nearest
+vertex, as in non-rigid ICP), so that the part of it that the first does not cover keeps its size and shape beyond
+the first's rim. The warp is used to find the overlap, not as the correspondence.
+
+Pure numpy/scipy (sparse Cholesky-free solve: one sparse LU per iteration of an n x n system, the three coordinates
+sharing it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .align import rigid_step
+from .harmonic import factorize
+from .surface import NORMAL_AGREEMENT, Surface, transform_points, vertex_normals
+
+WARP_WEIGHTS = (0.01, 0.03, 0.1, 0.3, 1.0)  # data weight per vertex against the ARAP energy, annealed
+WARP_ROUNDS = 10  # iterations (closest points, rigid step, rotations, solve) at each weight
+WARP_TRIM = 3.0  # pairs farther than this times the median distance are left out of the data term ...
+WARP_TRIM_FLOOR = 2.0  # ... but never those within this many edge lengths of the first mesh
+
+
+def _edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges (e, 2) of a triangle mesh, each once."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def _rotations(rest: np.ndarray, current: np.ndarray, i: np.ndarray, j: np.ndarray, n: int) -> np.ndarray:
+    """Per vertex, the rotation (n, 3, 3) that best turns its rest edges into its current ones (Kabsch)."""
+    cov = np.zeros((n, 3, 3))
+    outer = np.einsum("ea,eb->eab", rest[i] - rest[j], current[i] - current[j])
+    np.add.at(cov, i, outer)
+    np.add.at(cov, j, outer)
+    u, _, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(np.einsum("nji,nkj->nik", vt, u)))
+    d[d == 0] = 1.0
+    vt[:, 2, :] *= d[:, None]
+    return np.einsum("nji,nkj->nik", vt, u)
+
+
+def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarray:
+    """Bend a mesh onto ``target`` as rigidly as possible.
+
+    Parameters
+    ----------
+    rest : ndarray, shape (n, 3)
+        The mesh's vertices, already in the target's frame (posed and scaled by a similarity).
+    faces : ndarray, shape (m, 3)
+    target : Surface
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        The vertices after the warp.
+    """
+    n = len(rest)
+    edges = _edges(faces)
+    i, j = edges[:, 0], edges[:, 1]
+    ones = np.ones(len(edges))
+    adjacency = sp.csr_matrix((np.r_[ones, ones], (np.r_[i, j], np.r_[j, i])), shape=(n, n))
+    laplacian = sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
+    current = rest.copy()
+    for weight in WARP_WEIGHTS:
+        for _ in range(WARP_ROUNDS):
+            # a rigid point-to-plane step first: the whole mesh slides along the target, which the per-vertex goals
+            # below (points of the target's tangent planes) would hold back
+            held, tn, foot = _pairs(current, faces, target)
+            if held.sum() >= 6:
+                current = transform_points(rigid_step(current[held], tn[held], foot[held]), current)
+            plane = np.sum(tn * (current - foot), axis=1)
+            goal = current - plane[:, None] * tn
+            rot = _rotations(rest, current, i, j, n)
+            # ARAP right-hand side: sum over neighbours of (R_i + R_j) / 2 (rest_i - rest_j)
+            turned = 0.5 * np.einsum("eab,eb->ea", rot[i] + rot[j], rest[i] - rest[j])
+            rhs = np.zeros((n, 3))
+            np.add.at(rhs, i, turned)
+            np.add.at(rhs, j, -turned)
+            data = weight * held + 1e-9
+            rhs += data[:, None] * np.where(held[:, None], goal, current)
+            current = factorize((laplacian + sp.diags(data)).tocsc()).solve(rhs)
+    return current
+
+
+def _pairs(current: np.ndarray, faces: np.ndarray, target: Surface):
+    """Which vertices the data term holds (near the target, away from its rim, normals agreeing; beyond WARP_TRIM
+    times the median distance left out), the target's normals at their nearest vertices, and those vertices."""
+    normals = vertex_normals(current, faces)
+    dist, nearest = target.tree.query(current)
+    tn = target.normals[nearest]
+    limit = max(WARP_TRIM * float(np.median(dist)), WARP_TRIM_FLOOR * target.edge)
+    held = (dist <= limit) & ~target.rim[nearest] & (np.abs(np.sum(normals * tn, axis=1)) >= NORMAL_AGREEMENT)
+    return held, tn, target.vertices[nearest]

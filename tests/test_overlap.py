@@ -1,0 +1,217 @@
+"""Meshes that overlap only partly (issue 19): the pose, the overlap, the registration of the common region, what is
+left out, and the no-op on meshes that cover the same region. Known answers from meshreg.mesh.deform (pairs with a
+known material map) and from flat meshes whose overlap is known exactly."""
+
+from functools import cache
+
+import numpy as np
+import pytest
+
+from meshreg import Options
+from meshreg.mesh import deform
+from meshreg.mesh.align import align
+from meshreg.mesh.correspond import register_meshes
+from meshreg.mesh.export import UNMATCHED, colored_outputs
+from meshreg.mesh.overlap import clip, rigid_overlap, signed_rim_distance, slide, trim
+from meshreg.mesh.surface import Surface, transform_points
+from meshreg.mesh.topology import prepare_disk, triangle_areas
+from meshreg.result import Registration
+
+SHEET = {"n_first": 500, "n_second": 700}
+PARTIAL = {
+    "sheet-90%": deform.centred_region(0.9),
+    "corner-64%": (0.0, 0.8, 0.0, 0.8),
+    "strip-60%": (0.0, 1.0, 0.2, 0.8),
+}
+
+
+@cache
+def pair(name: str) -> deform.Pair:
+    if name == "remeshed":
+        return deform.remeshed_pair(**SHEET)
+    if name == "stretch":
+        return deform.stretched_pair("stretch", 0.5, **SHEET)
+    return deform.partial_pair(name, PARTIAL[name], **SHEET)
+
+
+@cache
+def registered(name: str, overlap: str = "auto"):
+    p = pair(name)
+    return register_meshes(p.first, p.second, Options(resolution=41, overlap=overlap))
+
+
+def true_pose(p: deform.Pair) -> np.ndarray:
+    """The similarity (4 x 4) taking the second mesh onto its true points on the first (least squares)."""
+    known = np.isfinite(p.truth[:, 0])
+    x, y = p.second[0][known], p.truth[known]
+    x0, y0 = x - x.mean(axis=0), y - y.mean(axis=0)
+    u, sv, vt = np.linalg.svd(x0.T @ y0)
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rotation = (u @ d @ vt).T
+    out = np.eye(4)
+    out[:3, :3] = np.sum(sv * np.diag(d)) / np.sum(x0 * x0) * rotation
+    out[:3, 3] = y.mean(axis=0) - out[:3, :3] @ x.mean(axis=0)
+    return out
+
+
+def grid_mesh(x0: float, x1: float, n: int = 21, relief: float = 0.0):
+    """The rectangle [x0, x1] x [0, 1] of the plane z = 0 (``relief`` 0) or of a surface with relief, n x n vertices,
+    two triangles per cell."""
+    xs, ys = np.meshgrid(np.linspace(x0, x1, n), np.linspace(0.0, 1.0, n), indexing="ij")
+    x, y = xs.ravel(), ys.ravel()
+    vertices = np.c_[x, y, relief * (np.sin(2.3 * x + 1.0) * np.cos(1.7 * y) + 0.7 * x * y**2)]
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return vertices, np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+
+
+def test_clip_cuts_triangles_along_the_zero_line():
+    vertices, faces = grid_mesh(0.0, 1.0, 5)
+    clipped = clip(vertices, faces, vertices[:, 0] - 0.3)  # keep x >= 0.3: cuts through the second column
+    assert np.isclose(triangle_areas(clipped.vertices, clipped.faces).sum(), 0.7)
+    assert clipped.vertices[:, 0].min() == pytest.approx(0.3)
+    cut = clipped.parent < 0
+    assert np.allclose(clipped.vertices[cut, 0], 0.3) and cut.sum() == 9  # one per crossed edge: 5 along x, 4 diagonals
+    # carried values: a linear function is carried exactly
+    assert np.allclose(clipped.carry @ (2 * vertices[:, 1] + 1), 2 * clipped.vertices[:, 1] + 1)
+
+
+def test_signed_distance_to_the_other_rim_of_two_flat_rectangles():
+    other = Surface(*grid_mesh(0.5, 1.5))
+    points = np.array([[0.2, 0.5, 0.0], [0.45, 0.5, 0.1], [0.8, 0.5, 0.0], [0.9, 0.1, 0.05], [0.5, 0.5, 0.0]])
+    signed, distance = signed_rim_distance(points, other)
+    # beyond the rim by the tangential gap; inside by the distance to the nearest side of the other
+    assert np.allclose(signed, [-0.3, -0.05, 0.3, 0.1, 0.0], atol=1e-12)
+    assert np.allclose(distance, [0.3, np.hypot(0.05, 0.1), 0.0, 0.05, 0.0], atol=1e-12)
+
+
+def test_two_halves_of_one_surface_overlap_by_half_in_any_pose():
+    # one lattice over x in [0, 1] and x in [0.5, 1.5] of one surface with relief: they share the band 0.5 <= x <= 1
+    first = grid_mesh(0.0, 1.0, relief=0.15)
+    second = grid_mesh(0.5, 1.5, relief=0.15)
+    shares = []
+    for v, f in (first, second):
+        disk = prepare_disk(v, f)  # (its cleanup drops two ears at the corners)
+        area = triangle_areas(disk.vertices, disk.faces)
+        x = disk.vertices[disk.faces, 0].mean(axis=1)
+        shares.append(area[(x >= 0.5) & (x <= 1.0)].sum() / area.sum())
+    moved = second[0] @ deform.PARTIAL_ROTATION.T + np.array([3.0, -1.0, 2.0])
+    found = rigid_overlap(prepare_disk(*first), prepare_disk(moved, second[1]))
+    assert found.regime == "rigid"
+    # within a triangle (0.1% of the area): the other's cleanup cut an ear off its corner on the shared band
+    assert found.first.fraction == pytest.approx(shares[0], abs=2e-3)
+    assert found.second.fraction == pytest.approx(shares[1], abs=2e-3)
+
+
+def test_slide_is_large_where_a_rigid_motion_slides_along_the_surface():
+    # how far a pose can slide within a given fit noise: finite where relief pins every motion, less with more relief;
+    # large on a surface of revolution (a turn about its axis; pinned only by the grid's facets); infinite on a plane
+    v, f = grid_mesh(0.0, 1.0, 41, relief=0.15)
+    everywhere = np.ones(len(v), dtype=bool)
+    relief, steeper, bowl, flat = v.copy(), v.copy(), v.copy(), v.copy()
+    steeper[:, 2] *= 3.0
+    bowl[:, 2] = (v[:, 0] - 0.5) ** 2 + (v[:, 1] - 0.5) ** 2
+    flat[:, 2] = 0.0
+    slid = [slide(Surface(x, f), everywhere, 1e-3) for x in (relief, steeper, bowl, flat)]
+    assert slid[1] < slid[0] < slid[2] / 5 and slid[3] == np.inf
+    assert slide(Surface(relief, f), everywhere, 0.0) == 0.0
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_pose_of_a_partial_copy_in_any_orientation_and_winding(flip):
+    p = pair("corner-64%")
+    v2, f2 = p.second
+    f2 = f2[:, ::-1] if flip else f2  # the second's faces wound the other way: its normals point the other way
+    found = align(Surface(*p.first), Surface(v2, f2))
+    moved, truth = transform_points(found.matrix, v2), transform_points(true_pose(p), v2)
+    assert np.max(np.linalg.norm(moved - truth, axis=1)) < 1e-3 * p.unit
+    assert found.scale == pytest.approx(1.0, abs=1e-9)  # two crops at one scale: the meshes' own units
+
+
+@pytest.mark.parametrize("name", list(PARTIAL))
+def test_partial_sheets_match_their_true_points_and_report_the_overlap(name):
+    p, mr = pair(name), registered(name)
+    overlap = mr.result.info["overlap"]
+    assert overlap["regime"] == "rigid"
+    assert abs(overlap["first_fraction"] - p.overlap) < 0.02  # the first's area that the second covers
+    assert overlap["second_fraction"] == pytest.approx(1.0, abs=0.01)  # the second lies on the first
+    err = p.errors(deform.matched_points(mr, len(p.second[0])))
+    assert np.median(err) <= 1e-4 and np.percentile(err, 90) <= 1e-3  # the same surface: closest points
+
+
+def test_vertices_outside_the_overlap_have_no_match_and_are_grey(tmp_path):
+    p, mr = pair("corner-64%"), registered("corner-64%")
+    result = mr.result
+    matched = np.all(np.isfinite(result.correspondence()), axis=1)
+    # each vertex of the first has a match exactly when the second covers it, but within an edge of its rim (the
+    # second's cleanup cut its corners' ears off)
+    edge = np.median(np.linalg.norm(p.first[0][p.first[1][:, 0]] - p.first[0][p.first[1][:, 1]], axis=1))
+    inner = (p.first_params.max(axis=1) < 0.8 - edge) & (p.first_params.min(axis=1) > edge)
+    outer = p.first_params.max(axis=1) > 0.8 + edge
+    assert matched[inner].all() and not matched[outer].any()
+    # the matches are the true points (the second is the same surface): the first's vertices moved by the pose, up to
+    # the gap between the two piecewise-linear surfaces (the second's triangles are chords of the first's facets)
+    on_second = transform_points(true_pose(p), result.correspondence()[inner])
+    gap = np.linalg.norm(on_second - p.first[0][inner], axis=1)
+    assert np.percentile(gap, 90) < 0.1 * edge and gap.max() < 0.5 * edge
+    kept = result.second.input_index >= 0  # all of the second that its cleanup kept lies over the first
+    assert np.all(np.isfinite(result.correspondence_on_first()[kept]))
+    c1, c2, _ = colored_outputs(mr, len(p.first[0]), len(p.second[0]))
+    assert np.allclose(c1[outer], UNMATCHED) and not np.any(np.all(np.isclose(c1[inner], UNMATCHED), axis=1))
+    # Open3D's fitness: the share of the first matched within 1% of sqrt(area) (a few exceed it along the gap)
+    assert result.fitness() == pytest.approx(matched.mean(), abs=0.05)
+    result.save(tmp_path / "result.npz")
+    again = Registration.load(tmp_path / "result.npz")
+    assert np.array_equal(np.isnan(again.correspondence()), np.isnan(result.correspondence()))
+    assert again.info["overlap"]["regime"] == "rigid"
+
+
+def test_a_boundary_one_triangle_off_does_not_move_interior_matches():
+    # issue 19, item 2: the first cut to the second's region by whole triangles (a ragged rim, up to one triangle
+    # inside the second's straight one); interior matches must not move by more than that triangle's size
+    p = deform.partial_pair("sheet-81%", deform.centred_region(0.81), **SHEET)
+    u0, u1, v0, v1 = p.info["region"]
+    params = p.first_params
+    inside = (params[:, 0] >= u0) & (params[:, 0] <= u1) & (params[:, 1] >= v0) & (params[:, 1] <= v1)
+    faces = p.first[1][inside[p.first[1]].all(axis=1)]
+    mr = register_meshes((p.first[0], faces), p.second, Options(resolution=41))
+    assert mr.result.info["overlap"]["regime"] == "rigid"
+    first_edges = np.linalg.norm(p.first[0][faces[:, 0]] - p.first[0][faces[:, 1]], axis=1)
+    triangle = first_edges.max()
+    margin = triangle  # the second's vertices at least one triangle inside the ragged rim
+    sp = p.second_params
+    interior = (sp[:, 0] > u0 + margin) & (sp[:, 0] < u1 - margin) & (sp[:, 1] > v0 + margin) & (sp[:, 1] < v1 - margin)
+    matched = deform.matched_points(mr, len(p.second[0]))[interior]
+    assert np.all(np.isfinite(matched))
+    moved = np.linalg.norm(matched - p.truth[interior], axis=1)
+    assert moved.max() < 0.01 * triangle  # far below one triangle: the matches are closest points
+
+
+def test_meshes_covering_the_same_region_give_exactly_the_whole_registration():
+    auto, off = registered("remeshed"), registered("remeshed", "off")
+    assert auto.result.info["overlap"]["regime"] == "full"
+    assert auto.result.info["overlap"]["first_fraction"] > 0.99
+    assert np.array_equal(auto.result.h, off.result.h) and auto.result.energy == off.result.energy
+    assert np.array_equal(auto.result.rotation, off.result.rotation)
+    assert "overlap" not in off.result.info
+
+
+def test_a_deformed_pair_at_another_scale_is_registered_whole():
+    # the stretched sheet (lengths change by up to 2x, second 2.5 times larger): an isometric warp leaves part of it
+    # beyond the first's rim, as for a partial pair; at another scale that is no evidence of one
+    auto, off = registered("stretch"), registered("stretch", "off")
+    overlap = auto.result.info["overlap"]
+    assert overlap["regime"] == "whole" and "scale" in overlap["reason"]
+    assert np.array_equal(auto.result.h, off.result.h)
+
+
+def test_overlap_off_and_bad_values():
+    with pytest.raises(Exception, match="overlap"):
+        Options(overlap="sometimes")
+    p = pair("corner-64%")
+    disk1, disk2 = prepare_disk(*p.first), prepare_disk(*p.second)
+    found = rigid_overlap(disk1, disk2)
+    trimmed, carry = trim(disk1, found.first.signed)
+    assert trimmed.vertex_map.tolist() == sorted(trimmed.vertex_map.tolist())  # ids as given, in order
+    assert np.allclose(carry @ disk1.vertices, trimmed.vertices)
+    assert set(trimmed.vertex_map.tolist()) <= set(disk1.vertex_map.tolist())
