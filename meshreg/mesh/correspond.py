@@ -106,7 +106,9 @@ def register_meshes(
         if found.regime in ("rigid", "elastic"):
             return register_overlap(disks[0], disks[1], found, n_input, options, infos)
     whole.info["overlap"] = found.summary()
-    return replace(whole, result=replace(whole.result, info=json_ready(whole.info)))
+    spent = whole.result.timings
+    timings = {**spent, "overlap": found.seconds, "total": spent.get("total", 0.0) + found.seconds}
+    return replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
 
 
 def register_disks(

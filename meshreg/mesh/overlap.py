@@ -319,7 +319,9 @@ def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, s
 def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
     """Pose the second mesh in the first's frame (:func:`meshreg.mesh.align.align`) and find where they overlap at
     that pose. Regime "full" or "rigid" when the pose makes them coincide (RMS over the overlap below TIGHT edge
-    lengths); else "deformed": the warp of :func:`warped_overlap` decides."""
+    lengths); "full" also when the pose is looser but already shows each mesh covering the other at the elastic
+    tolerance (a noisy or smoothed copy: the warp would only confirm it); else "deformed": the warp of
+    :func:`warped_overlap` decides."""
     start = time.perf_counter()
     s1, s2 = Surface(first.vertices, first.faces), Surface(second.vertices, second.faces)
     alignment = align(s1, s2)
@@ -327,8 +329,12 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
     posed = transform_points(alignment.matrix, second.vertices)
     one, two, rms, coincide = _sides(first, second, s1, posed, edge)
     slid = slide(s1, one.signed >= 0, rms) / edge
-    tight = rms <= TIGHT * edge
-    regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid) if tight else ("deformed", "")
+    if rms <= TIGHT * edge:
+        regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid)
+    elif _verdict("elastic", one, two, coincide, alignment.scale, slid)[0] == "full":
+        regime, reason = "full", ""  # the pose already shows each mesh covering the other: no warp needed
+    else:
+        regime, reason = "deformed", ""
     seconds = time.perf_counter() - start
     return Overlap(regime, one, two, alignment, posed, edge, {"pose": rms}, coincide, slid, seconds, reason)
 
