@@ -7,8 +7,10 @@ the first's frame. This module finds it without any start (the meshes may come i
 1. candidate poses: feature matching (FPFH, Rusu et al. 2009, on a voxel sample of each mesh; RANSAC over triplets
    of matches, scored by the matches they explain), both orientations of the second mesh's normals (its faces
    may be wound the other way), at the scales worth trying (1: two scans in the same units; the ratio of the areas:
-   the same region at another scale; a hint's); the principal axes of both meshes times the 24 rotations of the
-   cube; the identity (meshes given in one frame); a hint (e.g. the elastic registration's similarity);
+   the same region at another scale; a hint's); the identity (meshes given in one frame); a hint (e.g. the elastic
+   registration's similarity); and, unless one of those already coincides closely after ICP (a score of
+   SCORE_ENOUGH at the tightest of SCORE_LEVELS: the same surface), the principal axes of both meshes times the
+   24 rotations of the cube;
 2. each refined by a trimmed ICP (point-to-plane, with scale), which drops pairs beyond a robust distance, pairs
    whose closest point is on the other mesh's rim (the part of one scan that the other does not cover) and pairs
    whose normals disagree;
@@ -328,7 +330,7 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
     if hint is not None:
         scales.append(float(np.cbrt(abs(np.linalg.det(hint[:3, :3])))))
     scales = [s for i, s in enumerate(scales) if all(abs(np.log(s / t)) > SCALE_TIE for t in scales[:i])]
-    candidates = []  # (matrix, source)
+    candidates, axes = [], []  # (matrix, source): feature poses, principal-axes poses
     for s in scales:
         voxel = max(FEATURE_VOXEL * np.sqrt(min(first.area, s * s * second.area)), first.edge, s * second.edge)
         sample1 = voxel_sample(first, voxel)
@@ -344,7 +346,7 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
         c1, axes1 = principal_frame(sample1.points)
         c2, axes2 = principal_frame(sample2.points)
         for rot in cube_rotations():
-            candidates.append((_similarity(axes1 @ rot @ axes2.T, s, c2, c1), "principal axes"))
+            axes.append((_similarity(axes1 @ rot @ axes2.T, s, c2, c1), "principal axes"))
     candidates.append((np.eye(4), "identity"))
     if hint is not None:
         candidates.append((np.asarray(hint, dtype=float), "hint"))
@@ -352,7 +354,12 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
     cloud2 = voxel_sample(second, max(ICP_VOXEL * np.sqrt(second.area), second.edge))
     coarse = _subsample(cloud2, COARSE_POINTS, rng)
     poses = [icp(coarse, first, matrix)[0] for matrix, _ in candidates]
-    scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m in poses])
+    scores = [overlap_scores(cloud1, first, cloud2, second, m) for m in poses]
+    if max(score[0] for score in scores) < SCORE_ENOUGH:  # no feature pose coincides closely: try the axes too
+        candidates += axes
+        poses += [icp(coarse, first, matrix)[0] for matrix, _ in axes]
+        scores += [overlap_scores(cloud1, first, cloud2, second, m) for m in poses[len(scores) :]]
+    scores = np.array(scores)
     order = np.argsort(-scores[:, _ranking(scores)], kind="stable")[:FINALISTS]
     finals = [icp(cloud2, first, poses[k], iterations=ICP_FINE)[0] for k in order]
     scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m in finals])
