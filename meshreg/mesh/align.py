@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
@@ -110,45 +111,72 @@ def voxel_sample(surface: Surface, voxel: float) -> Cloud:
 
 def fpfh(cloud: Cloud, radius: float) -> np.ndarray:
     """Fast point feature histograms (k, 33) of a cloud with normals (Rusu, Blodow & Beetz 2009; as Open3D
-    computes them: 11 bins per angle, neighbours within ``radius``, weights 1 / squared distance)."""
+    computes them: 11 bins per angle, at most FPFH_NEIGHBOURS neighbours within ``radius``, weights 1 / squared
+    distance)."""
     p, n = cloud.points, cloud.normals
     if len(p) < 2:  # a mesh about one voxel across: no neighbours, empty histograms
         return np.zeros((len(p), 3 * FPFH_BINS))
     k = min(FPFH_NEIGHBOURS + 1, len(p))
     dist, idx = cKDTree(p).query(p, k=k, distance_upper_bound=radius)
-    valid = np.isfinite(dist) & (dist > 0)
-    idx = np.where(valid, idx, 0)
-    dp = p[idx] - p[:, None, :]
-    d = np.maximum(np.linalg.norm(dp, axis=-1), 1e-300)
-    n1, n2 = np.broadcast_to(n[:, None, :], dp.shape), n[idx]
-    a1, a2 = np.sum(n1 * dp, -1) / d, np.sum(n2 * dp, -1) / d
-    swap = np.abs(a1) < np.abs(a2)  # the source is the point whose normal is closer to the line between them
-    s_n = np.where(swap[..., None], n2, n1)
-    t_n = np.where(swap[..., None], n1, n2)
-    line = np.where(swap[..., None], -dp, dp) / d[..., None]
-    f3 = np.where(swap, -a2, a1)
+    idx = np.where(np.isfinite(dist) & (dist > 0), idx, -1).astype(np.int64)
+    return _fpfh(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(n, dtype=float), idx, FPFH_BINS)
+
+
+@numba.njit(cache=True)
+def _pair_features(p, n, i, j):
+    """The three angle features (f1, f2, f3) of points i and j, and their distance (0: degenerate pair)."""
+    dp = p[j] - p[i]
+    d = max(np.sqrt(dp[0] ** 2 + dp[1] ** 2 + dp[2] ** 2), 1e-300)
+    a1, a2 = np.dot(n[i], dp) / d, np.dot(n[j], dp) / d
+    if abs(a1) < abs(a2):  # the source is the point whose normal is closer to the line between them
+        s_n, t_n, line, f3 = n[j], n[i], -dp / d, -a2
+    else:
+        s_n, t_n, line, f3 = n[i], n[j], dp / d, a1
     v = np.cross(line, s_n)
-    v_norm = np.linalg.norm(v, axis=-1)
-    valid &= v_norm > 1e-12
-    v /= np.maximum(v_norm, 1e-300)[..., None]
+    v_norm = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+    if v_norm <= 1e-12:
+        return 0.0, 0.0, 0.0, 0.0
+    v = v / v_norm
     w = np.cross(s_n, v)
-    f2 = np.sum(v * t_n, -1)
-    f1 = np.arctan2(np.sum(w * t_n, -1), np.sum(s_n * t_n, -1))
-    bins = [
-        np.clip(np.floor(FPFH_BINS * (f1 + np.pi) / (2 * np.pi)), 0, FPFH_BINS - 1),
-        np.clip(np.floor(FPFH_BINS * (f2 + 1) * 0.5), 0, FPFH_BINS - 1),
-        np.clip(np.floor(FPFH_BINS * (f3 + 1) * 0.5), 0, FPFH_BINS - 1),
-    ]
-    count = np.maximum(valid.sum(axis=1), 1)
-    spfh = np.zeros((len(p), 3 * FPFH_BINS))
-    rows = np.broadcast_to(np.arange(len(p))[:, None], valid.shape)
-    for j, b in enumerate(bins):
-        np.add.at(spfh, (rows[valid], (j * FPFH_BINS + b[valid]).astype(np.int64)), (100.0 / count[rows[valid]]))
-    weight = np.where(valid, 1.0 / np.maximum(d**2, 1e-300), 0.0)
-    neighbours = np.einsum("kn,knb->kb", weight, spfh[idx])
-    sums = neighbours.reshape(len(p), 3, FPFH_BINS).sum(axis=2)
-    scale = np.divide(100.0, sums, out=np.zeros_like(sums), where=sums > 0)
-    return spfh + (neighbours.reshape(len(p), 3, FPFH_BINS) * scale[:, :, None]).reshape(len(p), -1)
+    return np.arctan2(np.dot(w, t_n), np.dot(s_n, t_n)), np.dot(v, t_n), f3, d
+
+
+@numba.njit(cache=True)
+def _fpfh(p, n, idx, bins):
+    """FPFH of points p (k, 3) with normals n (k, 3) and neighbour indices idx (k, m) (-1: none): (k, 3 bins)."""
+    k, m = idx.shape
+    spfh = np.zeros((k, 3 * bins))
+    weight = np.zeros((k, m))
+    for i in range(k):
+        found = np.zeros((m, 3), np.int64)
+        count = 0
+        for c in range(m):
+            j = idx[i, c]
+            if j < 0:
+                continue
+            f1, f2, f3, d = _pair_features(p, n, i, j)
+            if d == 0.0:
+                continue
+            found[count, 0] = min(max(int(np.floor(bins * (f1 + np.pi) / (2 * np.pi))), 0), bins - 1)
+            found[count, 1] = min(max(int(np.floor(bins * (f2 + 1) * 0.5)), 0), bins - 1)
+            found[count, 2] = min(max(int(np.floor(bins * (f3 + 1) * 0.5)), 0), bins - 1)
+            weight[i, c] = 1.0 / max(d * d, 1e-300)
+            count += 1
+        share = 100.0 / max(count, 1)
+        for c in range(count):
+            for f in range(3):
+                spfh[i, f * bins + found[c, f]] += share
+    out = spfh.copy()
+    for i in range(k):
+        neighbours = np.zeros(3 * bins)
+        for c in range(m):
+            if weight[i, c] > 0.0:
+                neighbours += weight[i, c] * spfh[idx[i, c]]
+        for f in range(3):
+            total = neighbours[f * bins : (f + 1) * bins].sum()
+            if total > 0.0:
+                out[i, f * bins : (f + 1) * bins] += neighbours[f * bins : (f + 1) * bins] * (100.0 / total)
+    return out
 
 
 def _kabsch_batch(p: np.ndarray, q: np.ndarray) -> np.ndarray:
