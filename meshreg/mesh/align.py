@@ -18,7 +18,7 @@ the first's frame. This module finds it without any start (the meshes may come i
    the other with normals agreeing and away from its rim, then by the trimmed RMS. A wrong pose of a nearly flat
    sheet can have a small RMS, but it puts less area within that distance than the right one.
 
-Pure numpy/scipy (and trimesh's exact closest points); deterministic (seeded).
+numpy/scipy, the FPFH histograms in numba; deterministic (seeded).
 """
 
 from __future__ import annotations
