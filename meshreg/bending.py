@@ -30,8 +30,7 @@ from functools import partial
 import numpy as np
 
 from .alternatives import find_alternatives
-from .choice import mirror_record
-from .errors import InputError
+from .choice import every_match_mirrored, every_start_mirrored, mirror_record
 from .grid import GridSurface
 from .local_rotation import LocalObjective, local_energy
 from .objective import Objective
@@ -116,8 +115,7 @@ def register_bending(
     ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
     fair = [(k, e) for k, e, mirrored in ranked if not mirrored]
     if not fair:
-        pinned = "" if symmetry is None else f" under the symmetry {symmetry} of the square (corners or --symmetry)"
-        raise InputError(f"every start{pinned} puts the first surface on a mirror image of the second")
+        raise every_start_mirrored(symmetry)
     close = [k for k, e in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
     spare = [k for k, _ in fair if k not in close]
     timings["search"] = time.perf_counter() - tic
@@ -187,10 +185,7 @@ def _unmirrored(close: list[int], spare: list[int], descend) -> tuple[BentRun, l
     runs = [descend(k) for k in close]
     while all(run.residual.mirrored for run in runs):
         if not spare:
-            raise InputError(
-                "every correspondence found puts the first surface on a mirror image of the second "
-                f"(lowest E {min(run.energy for run in runs):.3g}): are they mirror images of each other?"
-            )
+            raise every_match_mirrored(min(run.energy for run in runs))
         runs.append(descend(spare.pop(0)))
     return min((run for run in runs if not run.residual.mirrored), key=lambda run: run.bend_energy), runs
 

@@ -36,10 +36,23 @@ def ranked_starts(first: GridSurface, second: GridSurface, options: Options, tim
     )
     ranked = [s for s in found if not s.mirrored]
     if not ranked:
-        pinned = "" if options.symmetry is None else f" under the pinned symmetry {options.symmetry}"
-        raise InputError(f"every start{pinned} puts the first surface on a mirror image of the second")
+        raise every_start_mirrored(options.symmetry)
     timings["search"] = time.perf_counter() - tic
     return ranked, next((s for s in found if s.mirrored), None)
+
+
+def every_start_mirrored(symmetry: int | None) -> InputError:
+    """The error when every start (under the pinned ``symmetry``, if any) is on the mirror image of the second."""
+    pinned = "" if symmetry is None else f" under the pinned symmetry {symmetry}"
+    return InputError(f"every start{pinned} puts the first surface on a mirror image of the second")
+
+
+def every_match_mirrored(lowest_energy: float) -> InputError:
+    """The error when every correspondence found, down to the last spare start, is on the mirror image."""
+    return InputError(
+        "every correspondence found puts the first surface on a mirror image of the second "
+        f"(lowest E {lowest_energy:.3g}): are they mirror images of each other?"
+    )
 
 
 def choose_unmirrored(candidates: list[Candidate], starts: list[Start], spare: list[Start], run, options: Options):
@@ -57,10 +70,7 @@ def choose_unmirrored(candidates: list[Candidate], starts: list[Start], spare: l
         fair = [k for k, c in enumerate(candidates) if k not in rejected and not c.residual().mirrored]
         if not fair:
             if not spare:
-                raise InputError(
-                    "every correspondence found puts the first surface on a mirror image of the second "
-                    f"(lowest E {min(c.energy for c in candidates):.3g}): are they mirror images of each other?"
-                )
+                raise every_match_mirrored(min(c.energy for c in candidates))
             starts.append(spare.pop(0))
             candidates.append(run(starts[-1]))
             continue
