@@ -259,21 +259,22 @@ def _dp_then_descent(
         rotation, h, _ = dp_stage(drive.work, options, both=both, rotation=rotation)
         log.step("dp", 0, energy_dp := drive.full_energy(rotation, h))
     rotation, h = drive.descend(rotation, valid_start(drive.work, h), [options.basis], log)
-    return Candidate(objective, rotation, h, drive.work.energy(rotation, h), log, energy_dp=energy_dp, pending=drive)
+    energy, measured = drive.work.evaluate(rotation, h)
+    return Candidate(objective, rotation, h, energy, log, energy_dp=energy_dp, pending=drive, measured=measured)
 
 
 def _descent_paths(
     first: GridSurface, second: GridSurface, area: float, rotation, options: Options, log: Log
 ) -> Candidate:
-    """Mode "gd": every descent path of :func:`~meshreg.schedule.gd_paths` from R = I, h = id, each refined;
-    the one with the lowest E is kept."""
+    """Mode "gd": each path of :func:`~meshreg.schedule.gd_paths` from R = I, h = id, refined; the lowest E kept."""
     objective = Objective(first, second, area)
     drive = Descent(objective, options, *work_objective(objective, first, second, area))
     ends = []
     for path in gd_paths(options):
         path_log = Log(log.callback, log.timings)
         rotation, h = drive.from_identity(first, second, path, path_log)
-        ends.append(Candidate(objective, rotation, h, objective.energy(rotation, h), path_log, gd_path=path))
+        energy, measured = objective.evaluate(rotation, h)
+        ends.append(Candidate(objective, rotation, h, energy, path_log, gd_path=path, measured=measured))
     return min(ends, key=lambda c: c.energy)
 
 
