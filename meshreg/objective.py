@@ -192,7 +192,6 @@ class _GramPattern:
     8 x 8 products lands in the CSR data of J^T J."""
 
     def __init__(self, m: int, n: int):
-        self.shape = (m, n)
         nodes = np.arange(m * n).reshape(m, n)
         corner_nodes = np.stack([nodes[di : m - 1 + di, dj : n - 1 + dj] for di, dj in _CORNERS], axis=-1)
         self.cols = (corner_nodes[..., None] * 2 + np.arange(2)).reshape(-1, 8)  # (cells, 8)

@@ -131,11 +131,6 @@ def write_mesh_registration(
 ) -> Written:
     """Register two meshes (:class:`meshreg.surfaces.Mesh`) and write coloured meshes, ``result.npz``, both
     figures and, with ``html``, the interactive page ``view.html``."""
-    return _write_mesh_registration(first, second, out, options, callback, html)[0]
-
-
-def _write_mesh_registration(first, second, out: Path, options: Options, callback=None, html: bool = False):
-    """:func:`write_mesh_registration`, also returning the MeshRegistration."""
     from .mesh.correspond import register_meshes
     from .mesh.export import colored_outputs, write_ply
     from .viz import plot_meshes
@@ -186,7 +181,7 @@ def _write_mesh_registration(first, second, out: Path, options: Options, callbac
             notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
     if "overlap" in mr.info:
         notes.append(overlap_note(mr.info["overlap"]))
-    return Written(result, [out / name for name in names], notes), mr
+    return Written(result, [out / name for name in names], notes)
 
 
 def _registration_figure(result: Registration, first, second, path: Path, title: str) -> Path:

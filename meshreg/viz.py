@@ -167,7 +167,6 @@ def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z])
 
 
-LIGHT = np.array([-0.4, 0.35, 0.85]) / np.linalg.norm([-0.4, 0.35, 0.85])  # key light, in the view's frame
 ELEVATION, AZIMUTH = 35.0, -60.0  # oblique camera of the mesh pictures, degrees
 
 
