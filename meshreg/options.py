@@ -293,7 +293,7 @@ class Options:
         ):
             if getattr(self, name) not in allowed:
                 raise InputError(f"unknown {name} {getattr(self, name)!r}: choose one of {', '.join(allowed)}")
-        for name in ("search", "symmetries", "cleanup", "force"):
+        for name in ("search", "symmetries", "keep_orientation", "cleanup", "force"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
         _integer("window", self.window, 1, MAX_WINDOW)
