@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from ..rotation import angle_between
 from ..search import cube_rotations
 from .surface import NORMAL_AGREEMENT, Surface, transform_normals, transform_points
 
@@ -230,8 +231,8 @@ def ransac_poses(source: Cloud, target: Cloud, f_source, f_target, voxel: float,
 
 
 def _same_pose(m1: np.ndarray, m2: np.ndarray, voxel: float) -> bool:
-    angle = np.degrees(np.arccos(np.clip((np.trace(m1[:3, :3] @ m2[:3, :3].T) - 1) / 2, -1, 1)))
-    return angle < 5.0 and np.linalg.norm(m1[:3, 3] - m2[:3, 3]) < 3 * voxel
+    """Whether two poses (4 x 4) differ by less than 5 degrees and 3 voxels."""
+    return angle_between(m1[:3, :3], m2[:3, :3]) < 5.0 and np.linalg.norm(m1[:3, 3] - m2[:3, 3]) < 3 * voxel
 
 
 def rigid_step(x, n, p) -> np.ndarray:
@@ -244,12 +245,13 @@ def rigid_step(x, n, p) -> np.ndarray:
     plane = np.hstack([np.cross(xc, n), n])  # n . (x - p) + omega . (xc x n) + n . t
     a = plane.T @ plane
     b = -plane.T @ np.sum(n * (x - p), axis=1)
-    skew = np.zeros((k, 3, 3))  # omega x xc = -[xc]_x omega, per axis
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = xc[:, 2], -xc[:, 1], xc[:, 0]
-    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -xc[:, 2], xc[:, 1], -xc[:, 0]
-    point = np.concatenate([skew, np.broadcast_to(np.eye(3), (k, 3, 3))], axis=2).reshape(-1, 6)
-    a += POINT_WEIGHT**2 * point.T @ point
-    b += POINT_WEIGHT**2 * point.T @ (-(x - p)).ravel()
+    if POINT_WEIGHT:  # 0 by default: the (3k, 6) point-to-point system is not built
+        skew = np.zeros((k, 3, 3))  # omega x xc = -[xc]_x omega, per axis
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = xc[:, 2], -xc[:, 1], xc[:, 0]
+        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -xc[:, 2], xc[:, 1], -xc[:, 0]
+        point = np.concatenate([skew, np.broadcast_to(np.eye(3), (k, 3, 3))], axis=2).reshape(-1, 6)
+        a += POINT_WEIGHT**2 * point.T @ point
+        b += POINT_WEIGHT**2 * point.T @ (-(x - p)).ravel()
     sol = np.linalg.solve(a + 1e-12 * np.trace(a) * np.eye(6), b)
     rot = Rotation.from_rotvec(sol[:3]).as_matrix()
     out = np.eye(4)
