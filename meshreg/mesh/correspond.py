@@ -129,6 +129,11 @@ def register_disks(
     """
     infos = {name: dict(info) for name, info in infos.items()}
     positions, tried, symmetry = corner_positions(disks, maps, options)
+    if symmetry is not None and options.symmetry not in (None, symmetry):
+        raise InputError(
+            f"the corners given for both meshes fix the symmetry of the square to {symmetry}, not the pinned "
+            f"{options.symmetry}: give corners or a symmetry, not both"
+        )
     if tried is not None:
         infos["second"]["corner_search"] = tried
     uvs = []
@@ -138,11 +143,6 @@ def register_disks(
         infos[name].update(info)
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
-    if symmetry is not None and options.symmetry not in (None, symmetry):
-        raise InputError(
-            f"the corners given for both meshes fix the symmetry of the square to {symmetry}, not the pinned "
-            f"{options.symmetry}: give corners or a symmetry, not both"
-        )
     pinned = options.symmetry if symmetry is None else symmetry
     if options.mode == "auto" and options.bend_window > 0:
         edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])
