@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from .diffeo import enforce_boundary, is_valid, largest_step
 from .fields import TensorBasis, riseth_basis
+from .normal_system import NodeSystem
 from .objective import Objective
 from .options import StepParams
 from .spline import GridInterpolator
@@ -203,14 +204,14 @@ def gauss_newton(
         if 2 * np.linalg.norm(rhs) < params.grad_tol:
             break
         diag = normal.diagonal()
-        scale = diag + 1e-12 * diag.sum() / len(rhs)
+        scale = diag + 1e-12 * diag.sum() / (basis.size + 3)
         accepted = None
         for _ in range(params.max_backtracks):
             step = _solve(normal, lam * scale, rhs, params.cg_iterations)
-            field_, jac_v = basis.synthesize(step[:-3])
             if additive:
-                candidate = _unfolded(state.h, field_)
+                candidate = _unfolded(state.h, (fields @ step[:-3]).reshape(state.h.shape))
             else:
+                field_, jac_v = basis.synthesize(step[:-3])
                 delta = min(1.0, params.step_fraction * max_step(-jac_v))
                 g = enforce_boundary(ident + delta * field_)
                 candidate = enforce_boundary(interp(g[..., 0], g[..., 1])[0])
@@ -240,11 +241,16 @@ def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, se
     """J^T J and -J^T res for J = [node_jac @ fields, rot_jac] (node_jac: :class:`CellJacobian`).
 
     For local (sparse) fields J is not formed: J^T J goes through node_jac^T node_jac, assembled from
-    per-cell blocks on a cached pattern.
+    per-cell blocks on a cached pattern. For the node basis (``selection``: fields = columns of the identity)
+    beyond ``DENSE_LIMIT`` unknowns it is a :class:`~meshreg.normal_system.NodeSystem` (solved by CG), whose
+    right-hand side is on all node values.
     """
     if not sp.issparse(fields):
         jac = np.hstack([node_jac.matrix().tocsc() @ fields, rot_jac])
         return jac.T @ jac, -(jac.T @ res)
+    if selection is not None and len(selection) + 3 > DENSE_LIMIT:
+        system = NodeSystem(node_jac, rot_jac, res, selection)
+        return system, system.rhs
     nn = node_jac.gram()
     nr = node_jac.rmatvec(rot_jac)
     g_nodes = node_jac.rmatvec(res)
@@ -260,12 +266,14 @@ def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, se
 
 
 def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:
-    """Solve (normal + diag(shift)) x = rhs (symmetric positive definite).
+    """Solve (normal + diag(shift)) x = rhs (symmetric positive definite); x on the basis' coefficients and R.
 
-    Up to ``DENSE_LIMIT`` unknowns by Cholesky; beyond (the node basis, sparse; a global basis of KL >= 23,
-    dense), by Jacobi-preconditioned CG stopped after ``cg_iterations``: the result is only a Gauss-Newton
-    step, which the energy test accepts or rejects, so an inexact solve is enough.
+    Up to ``DENSE_LIMIT`` unknowns by Cholesky; beyond (the node basis, a :class:`NodeSystem`; a global basis of
+    KL >= 23, dense), by Jacobi-preconditioned CG stopped after ``cg_iterations``: the result is only a
+    Gauss-Newton step, which the energy test accepts or rejects, so an inexact solve is enough.
     """
+    if isinstance(normal, NodeSystem):
+        return normal.solve(shift, cg_iterations)
     if normal.shape[0] <= DENSE_LIMIT:
         dense = normal.toarray() if sp.issparse(normal) else normal
         try:

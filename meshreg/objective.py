@@ -17,11 +17,11 @@ v on the square, for the composition h o (id + tau v)).
 
 from __future__ import annotations
 
-from functools import cached_property, lru_cache
+from functools import cached_property
 
 import numpy as np
-import scipy.sparse as sp
 
+from .cell_jacobian import CORNERS, CellJacobian, gram_pattern
 from .diffeo import identity
 from .grid import GridSurface
 from .residual import Residual, coordinate_residual, node_weights
@@ -152,7 +152,7 @@ class Objective:
         blocks = np.concatenate(
             [
                 -sw[..., None] * (cell_jac[c] @ node_jac[di : m - 1 + di, dj : n - 1 + dj])
-                for c, (di, dj) in enumerate(_CORNERS)
+                for c, (di, dj) in enumerate(CORNERS)
             ],
             axis=-1,
         )  # (M-1, N-1, 3, 8): columns (corner, component)
@@ -174,64 +174,3 @@ def _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt):
     d_dr = dc_du * dh_dr[..., :1] + dc_dv * dh_dr[..., 1:]
     d_dt = dc_du * dh_dt[..., :1] + dc_dv * dh_dt[..., 1:]
     return d_dr, d_dt
-
-
-_CORNERS = ((0, 0), (1, 0), (0, 1), (1, 1))
-PATTERN_CACHE = 4  # grid sizes whose J^T J pattern is kept (a work grid, a full grid, a mesh resolution, ...)
-
-
-@lru_cache(maxsize=PATTERN_CACHE)
-def gram_pattern(m: int, n: int) -> _GramPattern:
-    """The :class:`_GramPattern` of an M x N grid, built once per grid size and process (the last
-    PATTERN_CACHE sizes are kept: building one sorts 64 keys per cell, 1.4 s at 401 x 401)."""
-    return _GramPattern(m, n)
-
-
-class _GramPattern:
-    """Index maps of an M x N grid: each cell's 8 node unknowns, and where each entry of the per-cell
-    8 x 8 products lands in the CSR data of J^T J."""
-
-    def __init__(self, m: int, n: int):
-        nodes = np.arange(m * n).reshape(m, n)
-        corner_nodes = np.stack([nodes[di : m - 1 + di, dj : n - 1 + dj] for di, dj in _CORNERS], axis=-1)
-        self.cols = (corner_nodes[..., None] * 2 + np.arange(2)).reshape(-1, 8)  # (cells, 8)
-        size = 2 * m * n
-        keys = (self.cols[:, :, None] * size + self.cols[:, None, :]).ravel()
-        unique, self.position = np.unique(keys, return_inverse=True)
-        self.position = self.position.ravel()
-        rows, cols = np.divmod(unique, size)
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))])
-        self.indices = cols
-        self.size = size
-
-
-class CellJacobian:
-    """Jacobian of the cell residuals with respect to node displacements, as per-cell blocks (cells, 3, 8)."""
-
-    def __init__(self, blocks: np.ndarray, pattern: _GramPattern):
-        self.blocks = blocks
-        self.pattern = pattern
-        self.shape = (3 * blocks.shape[0], pattern.size)
-
-    def matrix(self) -> sp.csr_matrix:
-        """The Jacobian as a sparse matrix (rows cell * 3 + component)."""
-        cells = self.blocks.shape[0]
-        rows = np.repeat(np.arange(3 * cells), 8)
-        cols = np.repeat(self.pattern.cols, 3, axis=0).ravel()
-        return sp.csr_matrix((self.blocks.ravel(), (rows, cols)), shape=self.shape)
-
-    def rmatvec(self, x: np.ndarray) -> np.ndarray:
-        """J^T x for x of shape (3 cells,) or (3 cells, k)."""
-        xr = x.reshape(self.blocks.shape[0], 3, -1)
-        contrib = np.einsum("cai,cak->cik", self.blocks, xr).reshape(-1, xr.shape[-1])
-        cols = self.pattern.cols.ravel()
-        out = np.stack(
-            [np.bincount(cols, weights=contrib[:, k], minlength=self.pattern.size) for k in range(xr.shape[-1])], -1
-        )
-        return out.reshape((self.pattern.size,) + x.shape[1:])
-
-    def gram(self) -> sp.csr_matrix:
-        """J^T J, assembled from the per-cell 8 x 8 products."""
-        products = np.einsum("cai,caj->cij", self.blocks, self.blocks).ravel()
-        data = np.bincount(self.pattern.position, weights=products, minlength=len(self.pattern.indices))
-        return sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr), shape=(self.pattern.size,) * 2)

@@ -1,0 +1,115 @@
+"""The Jacobian of the cell residuals of a grid with respect to its node displacements, and its normal matrix.
+
+Each cell's 3 residuals depend on the 2 components of its 4 corner nodes, so J (3 cells x 2 nodes) is kept as
+per-cell 3 x 8 blocks, and J^T J couples each node with its 8 neighbours (a 9-point stencil of 2 x 2 blocks).
+The CSR pattern of J^T J is built directly from that stencil and the per-cell products are added into its data
+in one numba pass (no sorting of keys, no (cells, 8, 8) temporary: at 401 x 401 the pattern took 1.4 s to build
+by sorting).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+CORNERS = ((0, 0), (1, 0), (0, 1), (1, 1))  # (di, dj) of a cell's corners, in the order of its 8 columns
+PATTERN_CACHE = 4  # grid sizes whose J^T J pattern is kept (a work grid, a full grid, a mesh resolution, ...)
+
+
+@numba.njit(cache=True)
+def _stencil_pattern(m, n):
+    """indptr, indices of the 9-point stencil of 2 x 2 blocks on an M x N grid (unknown 2 (i N + j) + c)."""
+    size = 2 * m * n
+    indptr = np.zeros(size + 1, np.int32)
+    for i in range(m):
+        for j in range(n):
+            width = (min(i + 1, m - 1) - max(i - 1, 0) + 1) * (min(j + 1, n - 1) - max(j - 1, 0) + 1) * 2
+            for c in range(2):
+                row = 2 * (i * n + j) + c
+                indptr[row + 1] = indptr[row] + width
+    indices = np.empty(indptr[size], np.int32)
+    for i in range(m):
+        for j in range(n):
+            for c in range(2):
+                k = indptr[2 * (i * n + j) + c]
+                for i2 in range(max(i - 1, 0), min(i + 1, m - 1) + 1):
+                    for j2 in range(max(j - 1, 0), min(j + 1, n - 1) + 1):
+                        for c2 in range(2):
+                            indices[k] = 2 * (i2 * n + j2) + c2
+                            k += 1
+    return indptr, indices
+
+
+@numba.njit(cache=True)
+def _gram_data(blocks, m, n, indptr):
+    """The CSR data of J^T J on the pattern of :func:`_stencil_pattern`, from per-cell blocks (cells, 3, 8)."""
+    data = np.zeros(indptr[-1])
+    for cell in range(blocks.shape[0]):
+        i, j = cell // (n - 1), cell % (n - 1)
+        for ca in range(4):  # corner ca = (i + ca % 2, j + ca // 2), columns 2 ca and 2 ca + 1
+            ia, ja = i + ca % 2, j + ca // 2
+            width = (min(ja + 1, n - 1) - max(ja - 1, 0) + 1) * 2  # entries per neighbour row of the stencil
+            row = 2 * (ia * n + ja)
+            for cb in range(4):
+                offset = (i + cb % 2 - max(ia - 1, 0)) * width + (j + cb // 2 - max(ja - 1, 0)) * 2
+                for c in range(2):
+                    start = indptr[row + c] + offset
+                    for d in range(2):
+                        s = 0.0
+                        for k in range(blocks.shape[1]):
+                            s += blocks[cell, k, 2 * ca + c] * blocks[cell, k, 2 * cb + d]
+                        data[start + d] += s
+    return data
+
+
+@lru_cache(maxsize=PATTERN_CACHE)
+def gram_pattern(m: int, n: int) -> GramPattern:
+    """The :class:`GramPattern` of an M x N grid, built once per grid size and process."""
+    return GramPattern(m, n)
+
+
+class GramPattern:
+    """Index maps of an M x N grid: each cell's 8 node unknowns (``cols``, (cells, 8)) and the CSR pattern of J^T J."""
+
+    def __init__(self, m: int, n: int):
+        nodes = np.arange(m * n).reshape(m, n)
+        corner_nodes = np.stack([nodes[di : m - 1 + di, dj : n - 1 + dj] for di, dj in CORNERS], axis=-1)
+        self.cols = (corner_nodes[..., None] * 2 + np.arange(2)).reshape(-1, 8)
+        self.indptr, self.indices = _stencil_pattern(m, n)
+        self.shape = (m, n)
+        self.size = 2 * m * n
+
+
+class CellJacobian:
+    """Jacobian of the cell residuals with respect to node displacements, as per-cell blocks (cells, 3, 8)."""
+
+    def __init__(self, blocks: np.ndarray, pattern: GramPattern):
+        self.blocks = blocks
+        self.pattern = pattern
+        self.shape = (3 * blocks.shape[0], pattern.size)
+
+    def matrix(self) -> sp.csr_matrix:
+        """The Jacobian as a sparse matrix (rows cell * 3 + component)."""
+        cells = self.blocks.shape[0]
+        rows = np.repeat(np.arange(3 * cells), 8)
+        cols = np.repeat(self.pattern.cols, 3, axis=0).ravel()
+        return sp.csr_matrix((self.blocks.ravel(), (rows, cols)), shape=self.shape)
+
+    def rmatvec(self, x: np.ndarray) -> np.ndarray:
+        """J^T x for x of shape (3 cells,) or (3 cells, k)."""
+        xr = x.reshape(self.blocks.shape[0], 3, -1)
+        contrib = np.einsum("cai,cak->cik", self.blocks, xr).reshape(-1, xr.shape[-1])
+        cols = self.pattern.cols.ravel()
+        out = np.stack(
+            [np.bincount(cols, weights=contrib[:, k], minlength=self.pattern.size) for k in range(xr.shape[-1])], -1
+        )
+        return out.reshape((self.pattern.size,) + x.shape[1:])
+
+    def gram(self) -> sp.csr_matrix:
+        """J^T J, assembled from the per-cell 8 x 8 products."""
+        m, n = self.pattern.shape
+        data = _gram_data(np.ascontiguousarray(self.blocks), m, n, self.pattern.indptr)
+        return sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr), shape=(self.pattern.size,) * 2)
