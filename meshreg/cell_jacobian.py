@@ -65,6 +65,32 @@ def _gram_data(blocks, m, n, indptr):
     return data
 
 
+@numba.njit(cache=True)
+def _times_dense(blocks, cols, fields, out):
+    """out[:, :F] = J @ fields for J given by per-cell blocks (cells, 3, 8) on the unknowns ``cols`` (cells, 8)."""
+    for cell in range(blocks.shape[0]):
+        for a in range(8):
+            source = cols[cell, a]
+            for k in range(3):
+                w = blocks[cell, k, a]
+                if w != 0.0:
+                    row = 3 * cell + k
+                    for f in range(fields.shape[1]):
+                        out[row, f] += w * fields[source, f]
+
+
+@numba.njit(cache=True)
+def _transpose_times(blocks, cols, x, out):
+    """out += J^T x for J given by per-cell blocks (cells, 3, 8) on the unknowns ``cols``; x (3 cells, k)."""
+    for cell in range(blocks.shape[0]):
+        for a in range(8):
+            target = cols[cell, a]
+            for k in range(3):
+                w = blocks[cell, k, a]
+                for j in range(x.shape[1]):
+                    out[target, j] += w * x[3 * cell + k, j]
+
+
 @lru_cache(maxsize=PATTERN_CACHE)
 def gram_pattern(m: int, n: int) -> GramPattern:
     """The :class:`GramPattern` of an M x N grid, built once per grid size and process."""
@@ -98,14 +124,17 @@ class CellJacobian:
         cols = np.repeat(self.pattern.cols, 3, axis=0).ravel()
         return sp.csr_matrix((self.blocks.ravel(), (rows, cols)), shape=self.shape)
 
+    def times_dense(self, fields: np.ndarray, extra: np.ndarray) -> np.ndarray:
+        """``[J @ fields, extra]``, shape (3 cells, F + E), for dense fields (2 M N, F), extra columns (3 cells, E)."""
+        out = np.zeros((self.shape[0], fields.shape[1] + extra.shape[1]))
+        out[:, fields.shape[1] :] = extra
+        _times_dense(self.blocks, self.pattern.cols, np.ascontiguousarray(fields), out)
+        return out
+
     def rmatvec(self, x: np.ndarray) -> np.ndarray:
         """J^T x for x of shape (3 cells,) or (3 cells, k)."""
-        xr = x.reshape(self.blocks.shape[0], 3, -1)
-        contrib = np.einsum("cai,cak->cik", self.blocks, xr).reshape(-1, xr.shape[-1])
-        cols = self.pattern.cols.ravel()
-        out = np.stack(
-            [np.bincount(cols, weights=contrib[:, k], minlength=self.pattern.size) for k in range(xr.shape[-1])], -1
-        )
+        out = np.zeros((self.pattern.size, x.size // self.shape[0]))
+        _transpose_times(self.blocks, self.pattern.cols, np.ascontiguousarray(x).reshape(self.shape[0], -1), out)
         return out.reshape((self.pattern.size,) + x.shape[1:])
 
     def gram(self) -> sp.csr_matrix:

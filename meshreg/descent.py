@@ -246,7 +246,7 @@ def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, se
     right-hand side is on all node values.
     """
     if not sp.issparse(fields):
-        jac = np.hstack([node_jac.matrix().tocsc() @ fields, rot_jac])
+        jac = node_jac.times_dense(fields, rot_jac)
         return jac.T @ jac, -(jac.T @ res)
     if selection is not None and len(selection) + 3 > DENSE_LIMIT:
         system = NodeSystem(node_jac, rot_jac, res, selection)
