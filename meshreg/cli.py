@@ -63,7 +63,8 @@ def _registering(quiet: bool):
 def _kernels_cached() -> bool:
     """Whether numba has cached the compiled kernels of every module that has them (else the first run compiles)."""
     package = Path(__file__).parent
-    modules = ("spline", "dp", "cell_jacobian", "mesh/resample", "mesh/locate", "mesh/align", "mesh/surface")
+    modules = ("spline", "dp", "srnf", "cell_jacobian", "normal_system")
+    modules += ("mesh/resample", "mesh/locate", "mesh/align", "mesh/surface")
     return all(any((package / m).parent.glob(f"__pycache__/{Path(m).name}.*.nbi")) for m in modules)
 
 

@@ -21,7 +21,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .cell_jacobian import CORNERS, CellJacobian, gram_pattern
+from .cell_jacobian import CellJacobian, gram_pattern
 from .diffeo import identity
 from .grid import GridSurface
 from .residual import Residual, coordinate_residual, node_weights
@@ -32,7 +32,7 @@ from .srnf import (
     energy,
     energy_gradient_points,
     shape_function,
-    shape_function_jacobians,
+    shape_function_blocks,
 )
 
 
@@ -144,18 +144,11 @@ class Objective:
         """
         pts, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
         d_dr, d_dt = _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt)
-        node_jac = np.stack([d_dr, d_dt], axis=-1)  # (M, N, 3, 2)
-        q, cell_jac = shape_function_jacobians(pts, self.weights)
+        q, blocks = shape_function_blocks(pts, self.weights, np.stack([d_dr, d_dt], axis=-1))
         sw = np.sqrt(self.weights)[..., None]
         res = sw * (self.q1 @ rotation.T - q)
+        blocks *= -sw[..., None]  # (M-1, N-1, 3, 8): columns (corner, component)
         m, n = h.shape[:2]
-        blocks = np.concatenate(
-            [
-                -sw[..., None] * (cell_jac[c] @ node_jac[di : m - 1 + di, dj : n - 1 + dj])
-                for c, (di, dj) in enumerate(CORNERS)
-            ],
-            axis=-1,
-        )  # (M-1, N-1, 3, 8): columns (corner, component)
         return res.ravel(), CellJacobian(blocks.reshape(-1, 3, 8), gram_pattern(m, n))
 
     def rotation_jacobian(self, rotation: np.ndarray) -> np.ndarray:

@@ -13,6 +13,7 @@ dynamic programming", Section 2 (shape function q, the action (q, h)).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 _TINY = 1e-300
@@ -134,25 +135,47 @@ def _skew(a: np.ndarray) -> np.ndarray:
     return s
 
 
-def shape_function_jacobians(points: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """q per cell and its derivatives with respect to the cell's four corner points.
+def shape_function_blocks(points: np.ndarray, weights: np.ndarray, columns: np.ndarray):
+    """q per cell and its derivatives along K unknowns of each of the cell's four corners.
 
     Parameters
     ----------
     points : ndarray, shape (M, N, 3)
     weights : ndarray, shape (M-1, N-1)
+    columns : ndarray, shape (M, N, 3, K)
+        The derivatives of the points along the K unknowns of each node.
 
     Returns
     -------
     q : ndarray, shape (M-1, N-1, 3)
-    jac : ndarray, shape (4, M-1, N-1, 3, 3)
-        ``jac[c]`` maps a displacement of corner c (order c00, c10, c01, c11) to the change of q.
+    blocks : ndarray, shape (M-1, N-1, 3, 4 K)
+        Column ``c K + k``: the derivative of the cell's q along unknown k of its corner c (order c00, c10,
+        c01, c11).
     """
     d1, d2, w, v, norm, q = _cells(points, weights)
-    vhat = v / norm
-    dq_dn = (np.eye(3) - 0.5 * vhat[..., :, None] * vhat[..., None, :]) / (np.sqrt(_derivative_scale(norm)) * w)[
-        ..., None
-    ]
-    s1 = 0.5 * dq_dn @ _skew(d1)
-    s2 = 0.5 * dq_dn @ _skew(d2)
-    return q, np.stack([s2, -s1, s1, -s2])
+    factor = 0.5 / (np.sqrt(_derivative_scale(norm)) * w)[..., 0]
+    blocks = np.empty(q.shape + (4 * columns.shape[-1],))
+    _corner_blocks(d1, d2, v / norm, factor, np.ascontiguousarray(columns, dtype=float), blocks)
+    return q, blocks
+
+
+@numba.njit(cache=True)
+def _corner_blocks(d1, d2, vhat, factor, columns, out):
+    """out[i, j, :, c K + k] = dq/dn (+-1/2 d x x) for x = columns at corner c of cell (i, j): n = (d1 x d2) / 2,
+    so a move x of corner c00 changes n by d2 x x / 2, of c10 by -d1 x x / 2, of c01 by d1 x x / 2, of c11 by
+    -d2 x x / 2; dq/dn = (I - vhat vhat^T / 2) / (sqrt|v| w), ``factor`` = 1 / (2 sqrt|v| w)."""
+    m, n, nk = d1.shape[0], d1.shape[1], columns.shape[3]
+    y = np.empty(3)
+    for i in range(m):
+        for j in range(n):
+            for c in range(4):
+                d = d2[i, j] if c == 0 or c == 3 else d1[i, j]
+                scale = factor[i, j] if c == 0 or c == 2 else -factor[i, j]
+                for k in range(nk):
+                    x = columns[i + c % 2, j + c // 2, :, k]
+                    y[0] = d[1] * x[2] - d[2] * x[1]
+                    y[1] = d[2] * x[0] - d[0] * x[2]
+                    y[2] = d[0] * x[1] - d[1] * x[0]
+                    dot = 0.5 * (vhat[i, j, 0] * y[0] + vhat[i, j, 1] * y[1] + vhat[i, j, 2] * y[2])
+                    for a in range(3):
+                        out[i, j, a, c * nk + k] = scale * (y[a] - dot * vhat[i, j, a])
