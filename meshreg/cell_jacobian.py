@@ -98,7 +98,9 @@ def gram_pattern(m: int, n: int) -> GramPattern:
 
 
 class GramPattern:
-    """Index maps of an M x N grid: each cell's 8 node unknowns (``cols``, (cells, 8)) and the CSR pattern of J^T J."""
+    """Index maps of an M x N grid: each cell's 8 node unknowns (``cols``, (cells, 8)), the CSR pattern of J^T J
+    (``indptr``, ``indices``) and of its upper triangle (``upper_indptr``, ``upper_indices``; ``upper``: where
+    its entries are in the full pattern's data)."""
 
     def __init__(self, m: int, n: int):
         nodes = np.arange(m * n).reshape(m, n)
@@ -107,6 +109,11 @@ class GramPattern:
         self.indptr, self.indices = _stencil_pattern(m, n)
         self.shape = (m, n)
         self.size = 2 * m * n
+        rows = np.repeat(np.arange(self.size), np.diff(self.indptr))
+        upper = self.indices >= rows
+        self.upper = np.flatnonzero(upper)  # the entries on and above the diagonal, each row's diagonal first
+        self.upper_indptr = np.r_[0, np.cumsum(np.bincount(rows[upper], minlength=self.size))].astype(np.int32)
+        self.upper_indices = self.indices[upper]
 
 
 class CellJacobian:
@@ -137,8 +144,14 @@ class CellJacobian:
         _transpose_times(self.blocks, self.pattern.cols, np.ascontiguousarray(x).reshape(self.shape[0], -1), out)
         return out.reshape((self.pattern.size,) + x.shape[1:])
 
-    def gram(self) -> sp.csr_matrix:
-        """J^T J, assembled from the per-cell 8 x 8 products."""
+    def gram(self, upper: bool = False) -> sp.csr_matrix:
+        """J^T J, assembled from the per-cell 8 x 8 products; with ``upper``, only its upper triangle (the
+        diagonal first in each row)."""
         m, n = self.pattern.shape
         data = _gram_data(np.ascontiguousarray(self.blocks), m, n, self.pattern.indptr)
-        return sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr), shape=(self.pattern.size,) * 2)
+        pattern = self.pattern
+        if upper:
+            data, indices, indptr = data[pattern.upper], pattern.upper_indices, pattern.upper_indptr
+        else:
+            indices, indptr = pattern.indices, pattern.indptr
+        return sp.csr_matrix((data, indices, indptr), shape=(pattern.size,) * 2)

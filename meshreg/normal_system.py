@@ -40,7 +40,7 @@ class NodeSystem:
         self.selection = selection
         self.free = np.zeros(node_jac.shape[1])
         self.free[selection] = 1.0
-        self.nodes = node_jac.gram()
+        self.nodes = node_jac.gram(upper=True)  # symmetric: the matrix-vector product reads half the entries
         self.border = node_jac.rmatvec(rot_jac) * self.free[:, None]
         self.corner = rot_jac.T @ rot_jac
         self.rhs = -np.concatenate([node_jac.rmatvec(res) * self.free, rot_jac.T @ res])
@@ -73,15 +73,20 @@ class NodeSystem:
 
 @numba.njit(cache=True)
 def _matvec(indptr, indices, data, border, corner, free, shift, x, out):
-    """out = ([[N, B], [B^T, C]] + diag(shift)) x, the rows of N masked by ``free`` (x is 0 where free is 0)."""
+    """out = ([[N, B], [B^T, C]] + diag(shift)) x, N symmetric given by its upper triangle (CSR, each row's
+    diagonal first), the rows of N masked by ``free`` (x is 0 where free is 0)."""
     size = len(indptr) - 1
     x0, x1, x2 = x[size], x[size + 1], x[size + 2]
     r0, r1, r2 = 0.0, 0.0, 0.0
+    out[:size] = 0.0
     for row in range(size):
-        s = border[row, 0] * x0 + border[row, 1] * x1 + border[row, 2] * x2
-        for k in range(indptr[row], indptr[row + 1]):
-            s += data[k] * x[indices[k]]
         xr = x[row]
+        start = indptr[row]
+        s = out[row] + data[start] * xr + border[row, 0] * x0 + border[row, 1] * x1 + border[row, 2] * x2
+        for k in range(start + 1, indptr[row + 1]):
+            j = indices[k]
+            s += data[k] * x[j]
+            out[j] += data[k] * xr
         out[row] = s * free[row] + shift[row] * xr
         r0 += border[row, 0] * xr
         r1 += border[row, 1] * xr
