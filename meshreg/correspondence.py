@@ -105,7 +105,7 @@ def h_at(h: np.ndarray, r: np.ndarray, t: np.ndarray, uv: np.ndarray) -> np.ndar
     nodes, clipped to the square); NaN rows stay NaN."""
     out = np.full(uv.shape, np.nan)
     ok = np.all(np.isfinite(uv), axis=1)
-    values = GridInterpolator(h, r, t)(uv[ok, 0], uv[ok, 1])[0]
+    values = GridInterpolator(h, r, t).values(uv[ok, 0], uv[ok, 1])
     out[ok] = np.clip(values, 0.0, 1.0)
     return out
 

@@ -144,7 +144,7 @@ def descend(
         accepted = None
         for _ in range(params.max_backtracks):
             g = enforce_boundary(ident - delta * field_)
-            candidate = enforce_boundary(interp(g[..., 0], g[..., 1])[0])
+            candidate = enforce_boundary(interp.values(g[..., 0], g[..., 1]))
             if is_valid(candidate):
                 e = objective.energy(rotation, candidate)
                 if e < state.energy:
@@ -214,7 +214,7 @@ def gauss_newton(
                 field_, jac_v = basis.synthesize(step[:-3])
                 delta = min(1.0, params.step_fraction * max_step(-jac_v))
                 g = enforce_boundary(ident + delta * field_)
-                candidate = enforce_boundary(interp(g[..., 0], g[..., 1])[0])
+                candidate = enforce_boundary(interp.values(g[..., 0], g[..., 1]))
             if is_valid(candidate):
                 new_rotation = Rotation.from_rotvec(step[-3:]).as_matrix() @ state.rotation
                 e = objective.energy(new_rotation, candidate)

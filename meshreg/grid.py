@@ -216,7 +216,7 @@ class GridSurface:
         This is the one way meshreg evaluates a surface between its nodes (bicubic interpolation); the
         registered second surface is ``second.scaled().at(result.h)``.
         """
-        return self.interpolator(h[..., 0], h[..., 1])[0]
+        return self.interpolator.values(h[..., 0], h[..., 1])
 
     def resampled(self, m: int, n: int) -> GridSurface:
         """The surface on a uniform m x n grid (bicubic interpolation)."""

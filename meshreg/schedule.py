@@ -178,7 +178,7 @@ def carry(h: np.ndarray | None, source: Objective | None, target: Objective) -> 
     valid start, or the identity when there is no h yet."""
     if h is None:
         return target.identity.copy()
-    value = GridInterpolator(h, source.r, source.t)(target.identity[..., 0], target.identity[..., 1])[0]
+    value = GridInterpolator(h, source.r, source.t).values(target.identity[..., 0], target.identity[..., 1])
     return valid_start(target, enforce_boundary(value))
 
 

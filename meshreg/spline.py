@@ -48,7 +48,8 @@ def _basis(knots, k, ncoef, x, values, derivs, ndu, left, right):
 
 
 @numba.njit(cache=True)
-def _evaluate(tx, ty, kx, ky, coef, u, v, out, out_u, out_v):
+def _evaluate(tx, ty, kx, ky, coef, u, v, out, out_u, out_v, derivatives):
+    """Values (and, with ``derivatives``, d/du and d/dv) of the spline at the points (u, v)."""
     nx, ny, nc = coef.shape
     bu = np.empty(kx + 1)
     dbu = np.empty(kx + 1)
@@ -71,13 +72,16 @@ def _evaluate(tx, ty, kx, ky, coef, u, v, out, out_u, out_v):
                 for b in range(ky + 1):
                     cf = coef[i0 + a, j0 + b, c]
                     row += cf * bv[b]
-                    row_v += cf * dbv[b]
+                    if derivatives:
+                        row_v += cf * dbv[b]
                 s += bu[a] * row
-                su += dbu[a] * row
-                sv += bu[a] * row_v
+                if derivatives:
+                    su += dbu[a] * row
+                    sv += bu[a] * row_v
             out[p, c] = s
-            out_u[p, c] = su
-            out_v[p, c] = sv
+            if derivatives:
+                out_u[p, c] = su
+                out_v[p, c] = sv
 
 
 class GridInterpolator:
@@ -120,12 +124,24 @@ class GridInterpolator:
         -------
         value, d_du, d_dv : ndarray, shape S + (C,)
         """
+        return self._run(u, v, derivatives=True)
+
+    def values(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The values alone at points (u, v), shape S + (C,) (no derivatives computed: about half the time)."""
+        return self._run(u, v, derivatives=False)[0]
+
+    def _run(self, u, v, derivatives: bool):
+        """(value, d_du, d_dv), or (value,) without ``derivatives``."""
         shape = np.shape(u)
         uu = np.ascontiguousarray(np.ravel(u), dtype=float)
         vv = np.ascontiguousarray(np.ravel(v), dtype=float)
         nc = self.coef.shape[2]
         out = np.empty((uu.size, nc))
-        out_u = np.empty((uu.size, nc))
-        out_v = np.empty((uu.size, nc))
-        _evaluate(self.tx, self.ty, self.kx, self.ky, self.coef, uu, vv, out, out_u, out_v)
-        return (out.reshape(shape + (nc,)), out_u.reshape(shape + (nc,)), out_v.reshape(shape + (nc,)))
+        out_u = np.empty((uu.size, nc) if derivatives else (0, nc))
+        out_v = np.empty((uu.size, nc) if derivatives else (0, nc))
+        _evaluate(self.tx, self.ty, self.kx, self.ky, self.coef, uu, vv, out, out_u, out_v, derivatives)
+        return (
+            tuple(x.reshape(shape + (nc,)) for x in (out, out_u, out_v))
+            if derivatives
+            else (out.reshape(shape + (nc,)),)
+        )
