@@ -1,12 +1,12 @@
 """Do fine grids pay off? One pair registered on several grids, every answer measured on common finer grids.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_fine.py [--pair "sine2-3 g1"] [--grids 101 201 401]
-        [--measure 401 801]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_fine.py [--pairs "sine2-3 g1" | all] [--grids 101 201 401]
+        [--measure 401 801] [--mode auto]
 
 E depends on the grid it is computed on (the node level fits h to the grid's nodes, and q o h is only sampled
 there), so the energies two grids report are not comparable. Here each answer (R, and h upsampled bicubically)
 is measured on the same grids: the answer that is better on a finer grid is the better answer for the surfaces.
-Prints a table (grid, seconds, E on its own grid, E on each measuring grid).
+Prints a table (pair, grid, seconds, E on its own grid, E on each measuring grid).
 """
 
 import argparse
@@ -18,14 +18,18 @@ import meshreg
 from meshreg.diffeo import enforce_boundary
 from meshreg.objective import Objective
 from meshreg.samples import paper_pairs
+from meshreg.search import apply_symmetry, inverse_symmetry, symmetry_map
 from meshreg.spline import GridInterpolator
 
 
 def energy_on(result, pair) -> float:
     """E on ``pair``'s grids of ``result`` found on other grids of the same surfaces (R, and h upsampled
-    bicubically)."""
-    objective = Objective(pair.first, pair.second)
+    bicubically). E is measured as the registration measured it: on the second surface reparametrized by the
+    result's symmetry of the square (an orientation-reversing symmetry flips the sign of q, which the action's
+    sqrt(det Jh) cannot see on the original parametrization)."""
+    objective = Objective(pair.first, apply_symmetry(pair.second, result.symmetry))
     h = GridInterpolator(result.h, result.r, result.t)(objective.identity[..., 0], objective.identity[..., 1])[0]
+    h = symmetry_map(inverse_symmetry(result.symmetry), h)
     return float(objective.energy(result.rotation, enforce_boundary(h)))
 
 
@@ -36,26 +40,27 @@ def paper_pair(name: str, size: int):
 
 def main():
     parser = argparse.ArgumentParser()
-    parser.add_argument("--pair", default="sine2-3 g1")
+    parser.add_argument("--pairs", nargs="+", default=["sine2-3 g1"], help='names of paper pairs, or "all"')
     parser.add_argument("--grids", type=int, nargs="+", default=[101, 201, 401])
     parser.add_argument("--measure", type=int, nargs="+", default=[401, 801])
+    parser.add_argument("--mode", default="auto")
     args = parser.parse_args()
     np.seterr(all="ignore")
-    warm = paper_pair(args.pair, 21)
-    meshreg.register(warm.first, warm.second)
-    rows = []
-    for size in args.grids:
-        pair = paper_pair(args.pair, size)
-        tic = time.perf_counter()
-        result = meshreg.register(pair.first, pair.second)
-        rows.append((size, time.perf_counter() - tic, result))
-    measured = {m: paper_pair(args.pair, m) for m in args.measure}
-    print(f"pair {args.pair}, mode auto")
-    print("| grid | seconds | E on its grid | " + " | ".join(f"E on {m}^2" for m in args.measure) + " |")
-    print("|---|---|---|" + "---|" * len(args.measure))
-    for size, seconds, result in rows:
-        energies = " | ".join(f"{energy_on(result, measured[m]):.3g}" for m in args.measure)
-        print(f"| {size}^2 | {seconds:.2f} | {result.energy:.3g} | {energies} |", flush=True)
+    names = [p.name for p in paper_pairs(21, 21)] if args.pairs == ["all"] else args.pairs
+    warm = paper_pair(names[0], 21)
+    meshreg.register(warm.first, warm.second, args.mode)
+    print(f"mode {args.mode}")
+    print("| pair | grid | seconds | E on its grid | " + " | ".join(f"E on {m}^2" for m in args.measure) + " |")
+    print("|---|---|---|---|" + "---|" * len(args.measure))
+    for name in names:
+        measured = {m: paper_pair(name, m) for m in args.measure}
+        for size in args.grids:
+            pair = paper_pair(name, size)
+            tic = time.perf_counter()
+            result = meshreg.register(pair.first, pair.second, args.mode)
+            seconds = time.perf_counter() - tic
+            energies = " | ".join(f"{energy_on(result, measured[m]):.3g}" for m in args.measure)
+            print(f"| {name} | {size}^2 | {seconds:.2f} | {result.energy:.3g} | {energies} |", flush=True)
 
 
 if __name__ == "__main__":
