@@ -41,6 +41,7 @@ class TensorBasis:
         self.a2, self.da2, self.b2, self.db2 = second
         self.sparse = sparse
         self.selection = None  # set when every field moves one node value: the rows of matrix() it keeps
+        self._matrix = None
         self.shape1 = (self.a1.shape[1], self.b1.shape[1])
         self.shape2 = (self.a2.shape[1], self.b2.shape[1])
         self.size = self.shape1[0] * self.shape1[1] + self.shape2[0] * self.shape2[1]
@@ -69,7 +70,15 @@ class TensorBasis:
         return np.stack([v1, v2], axis=-1), jac
 
     def matrix(self):
-        """The fields as columns of a (2 M N, size) matrix; row (i N + j) 2 + c is component c at node (i, j)."""
+        """The fields as columns of a (2 M N, size) matrix; row (i N + j) 2 + c is component c at node (i, j).
+
+        Built on the first call and kept (every Gauss-Newton round in the basis asks for it); do not modify it.
+        """
+        if self._matrix is None:
+            self._matrix = self._build_matrix()
+        return self._matrix
+
+    def _build_matrix(self):
         m, n = self.a1.shape[0], self.b1.shape[0]
         if self.sparse:
             k1 = sp.kron(sp.csr_matrix(self.a1), sp.csr_matrix(self.b1), format="csr")
@@ -152,5 +161,6 @@ def node_basis(r: np.ndarray, t: np.ndarray) -> TensorBasis:
     dr, dt = np.gradient(ir, r, axis=0), np.gradient(it, t, axis=0)
     inner_r, inner_t = slice(1, len(r) - 1), slice(1, len(t) - 1)
     basis = TensorBasis((ir[:, inner_r], dr[:, inner_r], it, dt), (ir, dr, it[:, inner_t], dt[:, inner_t]), sparse=True)
-    basis.selection = basis.matrix().tocoo().row[np.argsort(basis.matrix().tocoo().col)]
+    fields = basis.matrix().tocoo()
+    basis.selection = fields.row[np.argsort(fields.col)]
     return basis
