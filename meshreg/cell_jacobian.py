@@ -44,6 +44,22 @@ def _stencil_pattern(m, n):
 
 
 @numba.njit(cache=True)
+def _upper_triangle(indptr, indices):
+    """Positions (in the data) of the entries on and above the diagonal of a CSR pattern, and their indptr."""
+    size = len(indptr) - 1
+    upper = np.empty(len(indices), np.int64)
+    upper_indptr = np.zeros(size + 1, np.int32)
+    count = 0
+    for row in range(size):
+        for k in range(indptr[row], indptr[row + 1]):
+            if indices[k] >= row:
+                upper[count] = k
+                count += 1
+        upper_indptr[row + 1] = count
+    return upper[:count], upper_indptr
+
+
+@numba.njit(cache=True)
 def _gram_data(blocks, m, n, indptr):
     """The CSR data of J^T J on the pattern of :func:`_stencil_pattern`, from per-cell blocks (cells, 3, 8)."""
     data = np.zeros(indptr[-1])
@@ -109,11 +125,8 @@ class GramPattern:
         self.indptr, self.indices = _stencil_pattern(m, n)
         self.shape = (m, n)
         self.size = 2 * m * n
-        rows = np.repeat(np.arange(self.size), np.diff(self.indptr))
-        upper = self.indices >= rows
-        self.upper = np.flatnonzero(upper)  # the entries on and above the diagonal, each row's diagonal first
-        self.upper_indptr = np.r_[0, np.cumsum(np.bincount(rows[upper], minlength=self.size))].astype(np.int32)
-        self.upper_indices = self.indices[upper]
+        self.upper, self.upper_indptr = _upper_triangle(self.indptr, self.indices)
+        self.upper_indices = self.indices[self.upper]
 
 
 class CellJacobian:

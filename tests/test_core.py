@@ -1,10 +1,13 @@
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
+from meshreg.cell_jacobian import CellJacobian, gram_pattern
 from meshreg.descent import max_step
 from meshreg.diffeo import corner_areas, identity, is_valid
 from meshreg.dp import dp_surface_min
 from meshreg.fields import bspline_basis, node_basis, riseth_basis
+from meshreg.normal_system import NodeSystem
 from meshreg.objective import Objective
 from meshreg.rotation import kabsch
 from meshreg.samples import paper_pairs
@@ -144,3 +147,20 @@ def test_dp_reproduces_specification(pairs101, name, expected):
     assert np.all(np.diff(result.history) <= 1e-12) or len(result.history) <= 2
     if pair.same_shape and name.endswith("g1"):  # DP sees perturbations along r only
         assert np.allclose(result.rotation, pair.rotation, atol=0.01)
+
+
+def test_node_system_solves_the_selected_bordered_normal_equations():
+    """NodeSystem (upper triangle of J^T J on all node values, fixed ones masked, rotation as a border) solves
+    the same equations as the dense matrix of the free node values and the rotation."""
+    rng = np.random.default_rng(3)
+    m, n = 9, 8
+    node_jac = CellJacobian(rng.standard_normal(((m - 1) * (n - 1), 3, 8)), gram_pattern(m, n))
+    assert abs(node_jac.gram(upper=True) - sp.triu(node_jac.gram())).max() == 0
+    selection = node_basis(np.linspace(0, 1, m), np.linspace(0, 1, n)).selection
+    rot_jac, res = rng.standard_normal((node_jac.shape[0], 3)), rng.standard_normal(node_jac.shape[0])
+    system = NodeSystem(node_jac, rot_jac, res, selection)
+    shift = 0.1 + rng.random(node_jac.shape[1] + 3)
+    jac = np.hstack([node_jac.matrix().toarray()[:, selection], rot_jac])
+    free_shift = np.r_[shift[:-3][selection], shift[-3:]]
+    expected = np.linalg.solve(jac.T @ jac + np.diag(free_shift), -jac.T @ res)
+    assert np.allclose(system.solve(shift, 1000), expected, rtol=1e-6, atol=1e-9)
