@@ -82,16 +82,21 @@ def _gram_data(blocks, m, n, indptr):
 
 
 @numba.njit(cache=True)
-def _times_dense(blocks, cols, fields, out):
-    """out[:, :F] = J @ fields for J given by per-cell blocks (cells, 3, 8) on the unknowns ``cols`` (cells, 8)."""
+def _times_dense(blocks, cols, fields, extra, out):
+    """out = [J @ fields, extra] for J given by per-cell blocks (cells, 3, 8) on the unknowns ``cols`` (cells, 8)."""
+    nf = fields.shape[1]
     for cell in range(blocks.shape[0]):
-        for a in range(8):
-            source = cols[cell, a]
-            for k in range(3):
+        for k in range(3):
+            row = 3 * cell + k
+            for f in range(nf):
+                out[row, f] = 0.0
+            for e in range(extra.shape[1]):
+                out[row, nf + e] = extra[row, e]
+            for a in range(8):
                 w = blocks[cell, k, a]
                 if w != 0.0:
-                    row = 3 * cell + k
-                    for f in range(fields.shape[1]):
+                    source = cols[cell, a]
+                    for f in range(nf):
                         out[row, f] += w * fields[source, f]
 
 
@@ -146,9 +151,8 @@ class CellJacobian:
 
     def times_dense(self, fields: np.ndarray, extra: np.ndarray) -> np.ndarray:
         """``[J @ fields, extra]``, shape (3 cells, F + E), for dense fields (2 M N, F), extra columns (3 cells, E)."""
-        out = np.zeros((self.shape[0], fields.shape[1] + extra.shape[1]))
-        out[:, fields.shape[1] :] = extra
-        _times_dense(self.blocks, self.pattern.cols, np.ascontiguousarray(fields), out)
+        out = np.empty((self.shape[0], fields.shape[1] + extra.shape[1]))
+        _times_dense(self.blocks, self.pattern.cols, np.ascontiguousarray(fields), np.ascontiguousarray(extra), out)
         return out
 
     def rmatvec(self, x: np.ndarray) -> np.ndarray:
