@@ -262,7 +262,7 @@ def _consistent_orientation(f: np.ndarray, cleanup: bool, report: list) -> np.nd
 def _unpinched(f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
     """With ``cleanup``, faces without the triangles around vertices where the boundary touches itself."""
     for _ in range(10):
-        starts, uses = np.unique(_boundary_edges(f)[:, 0], return_counts=True)
+        starts, uses = np.unique(boundary_edges(f)[:, 0], return_counts=True)
         pinched = starts[uses > 1]  # the boundary passes twice through these vertices
         if not (cleanup and len(pinched)):
             break
@@ -404,7 +404,7 @@ def boundary_sizes(faces) -> list[int]:
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return []
-    edges = _boundary_edges(f)
+    edges = boundary_edges(f)
     if len(edges) == 0:
         return []
     n = int(f.max()) + 1
@@ -413,14 +413,22 @@ def boundary_sizes(faces) -> list[int]:
     return sorted(np.bincount(labels)[np.unique(labels)].tolist(), reverse=True)
 
 
-def _boundary_edges(faces):
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """Directed edges (b, 2) used by one triangle only (the rim and the rims of holes), in the faces' order."""
     e, _, inverse, counts = _edges(faces)
     return e[counts[inverse] == 1]
 
 
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges (e, 2) of a triangle mesh, each once as (lower id, higher id), sorted."""
+    _, uniq, _, _ = _edges(faces)
+    base = int(faces.max()) + 1
+    return np.stack([uniq // base, uniq % base], axis=1)
+
+
 def _boundary_loops(faces) -> list[list[int]]:
     """Boundary loops following the faces' directed edges (so the interior lies to their left)."""
-    directed = _boundary_edges(faces)
+    directed = boundary_edges(faces)
     nxt = {}
     for a, b in directed:
         if a in nxt:

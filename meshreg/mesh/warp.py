@@ -18,17 +18,12 @@ import scipy.sparse as sp
 from .align import rigid_step
 from .harmonic import factorize
 from .surface import NORMAL_AGREEMENT, Surface, transform_points, vertex_normals
+from .topology import unique_edges
 
 WARP_WEIGHTS = (0.01, 0.03, 0.1, 0.3, 1.0)  # data weight per vertex against the ARAP energy, annealed
 WARP_ROUNDS = 10  # iterations (closest points, rigid step, rotations, solve) at each weight
 WARP_TRIM = 3.0  # pairs farther than this times the median distance are left out of the data term ...
 WARP_TRIM_FLOOR = 2.0  # ... but never those within this many edge lengths of the first mesh
-
-
-def _edges(faces: np.ndarray) -> np.ndarray:
-    """Undirected edges (e, 2) of a triangle mesh, each once."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
 
 
 def _rotations(rest: np.ndarray, current: np.ndarray, i: np.ndarray, j: np.ndarray, n: int) -> np.ndarray:
@@ -60,7 +55,7 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarra
         The vertices after the warp.
     """
     n = len(rest)
-    edges = _edges(faces)
+    edges = unique_edges(faces)
     i, j = edges[:, 0], edges[:, 1]
     ones = np.ones(len(edges))
     adjacency = sp.csr_matrix((np.r_[ones, ones], (np.r_[i, j], np.r_[j, i])), shape=(n, n))
