@@ -235,12 +235,12 @@ def ransac_poses(source: Cloud, target: Cloud, f_source, f_target, voxel: float,
         return []
     poses = _kabsch_batch(a[good], b[good])
     counts = _explained(poses, ps, pt, (RANSAC_DISTANCE * voxel) ** 2)
+    order = np.argsort(-counts, kind="stable")
+    ranked, distinct = poses[order], counts[order] >= 3  # distinct: not the same as a pose kept already
     kept = []
-    for i in np.argsort(-counts, kind="stable"):
-        if len(kept) == RANSAC_KEEP or counts[i] < 3:
-            break
-        if all(not _same_pose(poses[i], k, voxel) for k in kept):
-            kept.append(poses[i])
+    while len(kept) < RANSAC_KEEP and distinct.any():
+        kept.append(ranked[np.argmax(distinct)])
+        distinct &= ~_same_pose(ranked, kept[-1], voxel)
     return kept
 
 
@@ -260,9 +260,10 @@ def _explained(poses, source, target, limit):
     return counts
 
 
-def _same_pose(m1: np.ndarray, m2: np.ndarray, voxel: float) -> bool:
-    """Whether two poses (4 x 4) differ by less than 5 degrees and 3 voxels."""
-    return angle_between(m1[:3, :3], m2[:3, :3]) < 5.0 and np.linalg.norm(m1[:3, 3] - m2[:3, 3]) < 3 * voxel
+def _same_pose(poses: np.ndarray, pose: np.ndarray, voxel: float) -> np.ndarray:
+    """Whether each of the poses (t, 4, 4) differs from ``pose`` (4 x 4) by less than 5 degrees and 3 voxels."""
+    near = np.linalg.norm(poses[:, :3, 3] - pose[:3, 3], axis=1) < 3 * voxel
+    return (angle_between(poses[:, :3, :3], pose[:3, :3]) < 5.0) & near
 
 
 def rigid_step(x, n, p) -> np.ndarray:
@@ -340,12 +341,15 @@ def overlap_scores(first: Cloud, first_surface: Surface, second: Cloud, second_s
     scores = []
     for cloud, surface, m in ((second, first_surface, matrix), (first, second_surface, inverse)):
         moved = cloud.moved(m)
-        dist, j = surface.tree.query(moved.points)
+        t = levels[:, None] * surface.edge
+        reach = SCORE_REACH * np.maximum(t, surface.edge)
+        # points beyond the reach do not count: the search stops there (a point far off a sheet visits many cells)
+        dist, j = surface.tree.query(moved.points, distance_upper_bound=float(reach.max()) * (1 + 1e-9))
+        j = np.minimum(j, len(surface.vertices) - 1)
         normal = surface.normals[j]
         plane = np.abs(np.sum(normal * (moved.points - surface.vertices[j]), axis=1))
         valid = ~surface.rim[j] & (np.abs(np.sum(moved.normals * normal, axis=1)) >= NORMAL_AGREEMENT)
-        t = levels[:, None] * surface.edge
-        near = valid & (dist <= SCORE_REACH * np.maximum(t, surface.edge))
+        near = valid & (dist <= reach)
         scores.append(np.mean(np.where(near, np.maximum(0.0, 1.0 - (plane / t) ** 2), 0.0), axis=1))
     return np.minimum(*scores)
 
