@@ -32,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from ..rotation import angle_between
 from ..search import cube_rotations
-from .surface import NORMAL_AGREEMENT, Surface, transform_normals, transform_points
+from .surface import NORMAL_AGREEMENT, Surface, cube_labels, transform_normals, transform_points
 
 FEATURE_VOXEL = 0.03  # voxel of the feature sample, in units of sqrt(area) of the smaller mesh (>= 1 edge length)
 FPFH_RADIUS = 5.0  # feature radius, in voxels (Open3D's usual choice)
@@ -99,10 +99,7 @@ class Cloud:
 
 def voxel_sample(surface: Surface, voxel: float) -> Cloud:
     """The mean vertex and mean normal of each occupied voxel of side ``voxel``."""
-    keys = np.floor((surface.vertices - surface.vertices.min(axis=0)) / voxel).astype(np.int64)
-    size = keys.max(axis=0) + 1  # one int64 per voxel, in the order of (x, y, z): faster than unique(axis=0)
-    _, label = np.unique((keys[:, 0] * size[1] + keys[:, 1]) * size[2] + keys[:, 2], return_inverse=True)
-    label = label.ravel()
+    label = cube_labels(surface.vertices, voxel)
     count = np.bincount(label)
     points = np.stack([np.bincount(label, surface.vertices[:, k]) for k in range(3)], axis=1) / count[:, None]
     normals = np.stack([np.bincount(label, surface.normals[:, k]) for k in range(3)], axis=1)

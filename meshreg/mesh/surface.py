@@ -30,9 +30,8 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals (n, 3) (zero for unreferenced vertices)."""
     fn = face_normals(vertices, faces)
-    out = np.zeros_like(vertices, dtype=float)
-    for k in range(3):
-        np.add.at(out, faces[:, k], fn)
+    corners, n = faces.ravel(), len(vertices)
+    out = np.stack([np.bincount(corners, np.repeat(fn[:, c], 3), minlength=n) for c in range(3)], axis=1)
     norm = np.linalg.norm(out, axis=1, keepdims=True)
     return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
@@ -41,6 +40,14 @@ def median_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Median length of the triangles' edges."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
     return float(np.median(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1)))
+
+
+def cube_labels(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Per point (n, 3), the index (n,) of the cube of side ``spacing`` that holds it, among the occupied cubes
+    in the order of their (x, y, z) grid indices."""
+    keys = np.floor((points - points.min(axis=0)) / spacing).astype(np.int64)
+    size = keys.max(axis=0) + 1  # one int64 per cube: much faster than np.unique(axis=0)
+    return np.unique((keys[:, 0] * size[1] + keys[:, 1]) * size[2] + keys[:, 2], return_inverse=True)[1].ravel()
 
 
 @numba.njit(cache=True)
