@@ -5,8 +5,9 @@ front end, two meshes through the API and the whole ``meshreg register`` command
 
 Warm runs: the numba kernels are compiled (or loaded from their cache) by small registrations first. ``--quick``
 runs a subset in under a minute (three of the paper's pairs at 101 x 101, sine 2-3 at 201 x 201, the mesh front
-end, two meshes through the API); the full run adds every paper pair, 401 x 401 and the command line. The distance
-matrix throughput is measured by ``benchmarks/bench_matrix.py``. Times on a shared machine vary by +-30 %.
+end, two meshes through the API); the full run adds every paper pair, 401 x 401, the command line and the distance
+matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local processes (``--jobs``). Times on a
+shared machine vary by +-30 %.
 """
 
 import argparse
@@ -21,16 +22,15 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from bench_fine import energy_on
+from bench_matrix import collection
 from scipy.spatial.transform import Rotation
 
 import meshreg
-from meshreg.diffeo import enforce_boundary
 from meshreg.mesh.corners import mesh_grids
 from meshreg.mesh.samples import random_disk_mesh, terrain_function
-from meshreg.objective import Objective
 from meshreg.options import Options
 from meshreg.samples import paper_pairs
-from meshreg.spline import GridInterpolator
 
 QUICK_PAIRS = ["sine2-3 g1", "helicoid4 g2", "cossin g2"]
 FINE_PAIRS = ["helicoid4 g2", "sine2-3 g1"]
@@ -66,17 +66,13 @@ def grid_rows(quick: bool) -> list[tuple[str, float, str]]:
         rows.append((f"auto {size}^2 {pair.name}", seconds, f"{result.energy:.3g} (x{ratio:.2f} of E at 101^2)"))
         if pair.name in coarse:
             rows.append(
-                (f"  the 101^2 answer measured on the {size}^2 grid", float("nan"), resampled(coarse[pair.name], pair))
+                (
+                    f"  the 101^2 answer measured on the {size}^2 grid",
+                    float("nan"),
+                    f"{energy_on(coarse[pair.name], pair):.3g}",
+                )
             )
     return rows
-
-
-def resampled(result, pair) -> str:
-    """E on the pair's grid of the answer found on 101 x 101 (R, and h upsampled bicubically): both answers
-    measured the same way."""
-    objective = Objective(pair.first, pair.second)
-    h = GridInterpolator(result.h, result.r, result.t)(objective.identity[..., 0], objective.identity[..., 1])[0]
-    return f"{objective.energy(result.rotation, enforce_boundary(h)):.3g}"
 
 
 def mesh_pair(faces: int):
@@ -109,6 +105,22 @@ def mesh_rows(faces: int, quick: bool) -> list[tuple[str, float, str]]:
     return rows
 
 
+def matrix_rows(jobs: int) -> list[tuple[str, float, str]]:
+    """All 190 pairs of bench_matrix.py's 20 different surfaces at 101 x 101 on ``jobs`` local processes: pairs
+    per second in all and per worker."""
+    grids = collection(20, 101)
+    seconds, result = timed(meshreg.distance_matrix, grids, jobs=jobs)
+    pairs = len(grids) * (len(grids) - 1) // 2
+    energy = np.median(result.energy[np.triu_indices(len(grids), 1)])
+    return [
+        (
+            f"distance matrix, 20 grids 101^2, {pairs} pairs, --jobs {jobs}",
+            seconds,
+            f"{pairs / seconds:.2f} pairs/s ({pairs / seconds / jobs:.2f} per worker), median E {energy:.3g}",
+        )
+    ]
+
+
 def warm_up():
     """Compile (or load) the numba kernels of grids and meshes."""
     pair = paper_pairs(21, 21)[0]
@@ -121,10 +133,13 @@ def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="a subset, in under a minute")
     parser.add_argument("--faces", type=int, default=100_000, help="triangles per mesh")
+    parser.add_argument("--jobs", type=int, default=2, help="local processes of the distance matrix")
     args = parser.parse_args()
     np.seterr(all="ignore")
     warm_up()
     rows = grid_rows(args.quick) + mesh_rows(args.faces, args.quick)
+    if not args.quick:
+        rows += matrix_rows(args.jobs)
     print(
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"{platform.python_implementation()} {platform.python_version()}, "

@@ -184,36 +184,39 @@ class Registration:
         ids, weights : ndarray, shape (k, 3)
             With ``barycentric``.
         """
-        points, ids, weights = self._matches if where is None else self.second.at_uv(self._h(self._first_uv(where)))
+        second = self._sides()[1]
+        points, ids, weights = self._matches if where is None else second.at_uv(self._h(self._first_uv(where)))
         return (points, ids, weights) if barycentric else points
 
     def correspondence_on_first(self) -> np.ndarray:
         """For each vertex of the second surface as given, its matched point on the first (first's coordinates),
         shape (n2, 3); NaN where cleanup dropped the vertex."""
-        uv = inverse_uv(self.h, self.r, self.t, self.second.input_uv())
-        return self.first.at_uv(uv)[0]
+        first, second = self._sides()
+        return first.at_uv(inverse_uv(self.h, self.r, self.t, second.input_uv()))[0]
 
     def vertex_pairs(self) -> np.ndarray:
         """(k, 2) vertex ids (first, second): each vertex of the first with a match, and the vertex of the second
         nearest to its matched point (like Open3D's ``correspondence_set``)."""
         from scipy.spatial import cKDTree
 
-        points = self.correspondence()
+        points, second = self.correspondence(), self._sides()[1]
         has = np.flatnonzero(np.all(np.isfinite(points), axis=1))
-        kept = np.flatnonzero(self.second.input_index >= 0)
-        _, nearest = cKDTree(self.second.vertices[self.second.input_index[kept]]).query(points[has])
+        kept = np.flatnonzero(second.input_index >= 0)
+        _, nearest = cKDTree(second.vertices[second.input_index[kept]]).query(points[has])
         return np.c_[has, kept[nearest]]
 
     def distances(self) -> np.ndarray:
         """Per vertex of the first surface as given, the distance (second's units) from the vertex moved by
         :attr:`transform` to its matched point, shape (n1,); NaN where there is no match. Near 0 everywhere for
         two meshes of one surface; large where the shapes differ."""
-        first = self.first.vertices[np.maximum(self.first.input_index, 0)]
-        return np.linalg.norm(self.aligned(first) - self.correspondence(), axis=1)
+        first = self._sides()[0]
+        return np.linalg.norm(
+            self.aligned(first.vertices[np.maximum(first.input_index, 0)]) - self.correspondence(), axis=1
+        )
 
     def inlier_threshold(self, fraction: float = INLIER_DISTANCE) -> float:
         """``fraction`` of sqrt(area of the second surface): the default distance of an inlier."""
-        return fraction * np.sqrt(self.second.area())
+        return fraction * np.sqrt(self._sides()[1].area())
 
     def fitness(self, threshold: float | None = None) -> float:
         """Fraction of the first surface's vertices whose :meth:`distances` is at most ``threshold`` (default
@@ -229,23 +232,29 @@ class Registration:
         return float(np.sqrt(np.mean(inliers**2))) if len(inliers) else float("nan")
 
     def _first_uv(self, where) -> np.ndarray:
+        first = self._sides()[0]
         where = np.asarray(where)
         if where.ndim == 2 and where.shape[1] == 3 and np.issubdtype(where.dtype, np.floating):
-            return self.first.uv_of_points(where)[0]
+            return first.uv_of_points(where)[0]
         if where.ndim != 1 or not np.issubdtype(where.dtype, np.integer):
             raise InputError("correspondence takes vertex ids (k,) or points (k, 3) of the first surface")
-        if len(where) and (where.min() < 0 or where.max() >= self.first.n_input):
-            raise InputError(f"vertex ids must be in 0..{self.first.n_input - 1}")
-        return self.first.input_uv(where)
+        if len(where) and (where.min() < 0 or where.max() >= first.n_input):
+            raise InputError(f"vertex ids must be in 0..{first.n_input - 1}")
+        return first.input_uv(where)
 
-    def _h(self, uv: np.ndarray) -> np.ndarray:
+    def _sides(self) -> tuple[Side, Side]:
+        """The two surfaces the correspondence methods need; InputError when the result has none attached."""
         if self.first is None or self.second is None:
             raise InputError("this result has no surfaces attached (made by an older meshreg): register again")
+        return self.first, self.second
+
+    def _h(self, uv: np.ndarray) -> np.ndarray:
         return h_at(self.h, self.r, self.t, uv)
 
     @cached_property
     def _matches(self):
-        return self.second.at_uv(self._h(self.first.input_uv()))
+        first, second = self._sides()
+        return second.at_uv(self._h(first.input_uv()))
 
     def save(self, path, **extra) -> None:
         """Write the result to ``path`` (``.npz``; keys listed in docs/outputs.md), plus ``extra`` arrays, atomically

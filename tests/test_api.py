@@ -107,6 +107,24 @@ def test_save_and_load_keep_the_correspondence(result, tmp_path):
     assert back.info == result.info and back.info["first"]["cleanup"] == result.info["first"]["cleanup"]
 
 
+def test_a_result_without_surfaces_says_so_from_every_correspondence_method(result):
+    from dataclasses import replace
+
+    bare = replace(result, first=None, second=None)
+    calls = [
+        bare.correspondence,
+        lambda: bare.correspondence([0]),
+        bare.correspondence_on_first,
+        bare.vertex_pairs,
+        bare.distances,
+        bare.fitness,
+        bare.inlier_rmse,
+    ]
+    for call in calls:
+        with pytest.raises(InputError, match="no surfaces attached"):
+            call()
+
+
 def test_grids_have_the_same_api():
     pair = paper_pairs(21, 21)[6]  # helicoid against P times itself, reparametrized
     result = meshreg.register(pair.first, pair.second, mode="dp+gd")
