@@ -24,7 +24,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
 from scipy.spatial.transform import Rotation
 
-from .diffeo import admissible, enforce_boundary, is_valid, largest_step
+from .diffeo import enforce_boundary, is_valid, largest_step
 from .fields import TensorBasis, riseth_basis
 from .objective import Objective
 from .options import StepParams
@@ -144,9 +144,9 @@ def descend(
         for _ in range(params.max_backtracks):
             g = enforce_boundary(ident - delta * field_)
             candidate = enforce_boundary(interp(g[..., 0], g[..., 1])[0])
-            if admissible(candidate, objective.r, objective.t, params.max_stretch):
+            if is_valid(candidate):
                 e = objective.energy(rotation, candidate)
-                if e < state.energy:
+                if e < state.energy and objective.within_stretch(candidate, params.max_stretch):
                     accepted = (candidate, e)
                     break
             delta *= 0.5
@@ -214,10 +214,10 @@ def gauss_newton(
                 delta = min(1.0, params.step_fraction * max_step(-jac_v))
                 g = enforce_boundary(ident + delta * field_)
                 candidate = enforce_boundary(interp(g[..., 0], g[..., 1])[0])
-            if admissible(candidate, objective.r, objective.t, params.max_stretch):
+            if is_valid(candidate):
                 new_rotation = Rotation.from_rotvec(step[-3:]).as_matrix() @ state.rotation
                 e = objective.energy(new_rotation, candidate)
-                if e < state.energy:
+                if e < state.energy and objective.within_stretch(candidate, params.max_stretch):
                     accepted = (candidate, new_rotation, e)
                     break
             lam = max(lam, 1e-6) * 4.0

@@ -92,19 +92,6 @@ def is_valid(h: np.ndarray, tol: float = 1e-9) -> bool:
     return boundary_ok and inside and bool(np.all(corner_areas(h) > 0))
 
 
-def stretch(h: np.ndarray, r: np.ndarray, t: np.ndarray) -> float:
-    """The largest factor by which h lengthens an edge of a grid cell: |h(r_i+1, t_j) - h(r_i, t_j)| / (r_i+1 - r_i)
-    and |h(r_i, t_j+1) - h(r_i, t_j)| / (t_j+1 - t_j) over the grid (1 for the identity), for h of shape (M, N, 2)."""
-    along_r = np.linalg.norm(np.diff(h, axis=0), axis=-1) / np.diff(r)[:, None]
-    along_t = np.linalg.norm(np.diff(h, axis=1), axis=-1) / np.diff(t)[None, :]
-    return float(max(along_r.max(), along_t.max()))
-
-
-def admissible(h: np.ndarray, r: np.ndarray, t: np.ndarray, max_stretch: float) -> bool:
-    """:func:`is_valid` and no cell edge lengthened by more than ``max_stretch`` (:func:`stretch`)."""
-    return is_valid(h) and stretch(h, r, t) <= max_stretch
-
-
 def compose(h: np.ndarray, r: np.ndarray, t: np.ndarray, g: np.ndarray) -> np.ndarray:
     """h o g at the nodes: h interpolated (bicubic) at the points g (M, N, 2); sides kept exact."""
     value, _, _ = GridInterpolator(h, r, t)(g[..., 0], g[..., 1])

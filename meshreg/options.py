@@ -63,8 +63,9 @@ class StepParams:
     cg_iterations : int
         Most conjugate-gradient iterations of a Gauss-Newton step in a local basis. Default 100.
     max_stretch : float
-        No step may lengthen an edge of a grid cell by more than this factor (:func:`meshreg.diffeo.stretch`).
-        Default 10, the steepest slope of a DP path with the default window (docs/method.md, "Stretch bound").
+        No descent step may make the correspondence lengthen an edge of the first grid by more than this factor
+        (its image on the second surface over the edge, both at area 1: :meth:`meshreg.objective.Objective.stretch`).
+        Default 10 (docs/method.md, "Stretch bound").
     """
 
     basis: int = 5

@@ -22,7 +22,7 @@ from functools import partial
 import numpy as np
 
 from .descent import descend, gauss_newton
-from .diffeo import admissible, compose, enforce_boundary, jacobian_determinant
+from .diffeo import compose, enforce_boundary, jacobian_determinant
 from .dp import dp_surface_min
 from .fields import bspline_basis, node_basis, riseth_basis
 from .grid import GridSurface
@@ -129,12 +129,12 @@ def valid_start(objective: Objective, h: np.ndarray, max_stretch: float = np.inf
 
     The descent needs an orientation-preserving start: a DP path that is flat in places (gamma' = 0) gives
     cells of zero area, where no step can be accepted; and a start beyond the stretch bound of the descent
-    (:func:`meshreg.diffeo.stretch`) where no step is accepted either.
+    (:meth:`~meshreg.objective.Objective.stretch`) where no step is accepted either.
     """
     r, t = objective.r, objective.t
     for eps in START_BLENDS:
         blended = (1.0 - eps) * h + eps * objective.identity
-        if admissible(blended, r, t, max_stretch) and jacobian_determinant(blended, r, t).min() >= START_MIN_DET:
+        if objective.admissible(blended, max_stretch) and jacobian_determinant(blended, r, t).min() >= START_MIN_DET:
             return blended
     return objective.identity.copy()
 
@@ -150,7 +150,7 @@ def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
         for p in range(2 * rounds):
             new_rotation, new_h, new_energy = _dp_along(objective, rotation, h, options.window, rounds, p % 2 == 0)
             # composing the two directions' steps can collapse cells, or stretch them beyond the descent's bound
-            if not admissible(new_h, objective.r, objective.t, options.advanced.max_stretch):
+            if not objective.admissible(new_h, options.advanced.max_stretch):
                 break
             if new_energy >= energy * (1 - DP_ROUND_TOL):
                 if new_energy < energy:
@@ -232,6 +232,8 @@ class Descent:
         self.work, self.nodes = work, nodes
         self.solver = descend if options.solver == "gradient" else gauss_newton
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
+        # mode "gd" descends from the identity, not from a DP path: no stretch bound (docs/method.md, "Stretch bound")
+        self.max_stretch = np.inf if options.mode == "gd" else options.advanced.max_stretch
 
     def full_energy(self, rotation, h: np.ndarray) -> float:
         """E on the full grid of R and h given at the work grid's nodes (h carried up when the grids differ)."""
@@ -251,7 +253,8 @@ class Descent:
         """Descend on ``target`` in the Riseth bases with KL in ``bases``, one after the other."""
         for kl in bases:
             solve = partial(self.solver, basis=riseth_basis(kl, target.r, target.t))
-            rotation, h = alternate(target, rotation, h, solve, self.options.steps(), self.rounds, log, "gd")
+            steps = self.options.steps(max_stretch=self.max_stretch)
+            rotation, h = alternate(target, rotation, h, solve, steps, self.rounds, log, "gd")
         return rotation, h
 
     def descend(self, rotation, h, bases, log: Log):
@@ -290,7 +293,7 @@ class Descent:
 
     def _enter(self, h, source: Objective, target: Objective, rotation, log: Log) -> np.ndarray:
         """:func:`carry` to another level; E on the full grid is kept on arrival there."""
-        h = carry(h, source, target, self.options.advanced.max_stretch)
+        h = carry(h, source, target, self.max_stretch)
         if target is self.objective:
             log.keep("full grid", self.objective.energy(rotation, h))
         return h
@@ -299,7 +302,11 @@ class Descent:
         """One refinement level: Gauss-Newton in ``fields`` on ``target``, alternated with Kabsch."""
         advanced = self.options.advanced
         cap = advanced.refine_iterations if target is self.work else advanced.fine_iterations
-        steps = self.options.steps(max_iterations=min(advanced.max_iterations, cap), rel_tol=advanced.refine_rel_tol)
+        steps = self.options.steps(
+            max_iterations=min(advanced.max_iterations, cap),
+            rel_tol=advanced.refine_rel_tol,
+            max_stretch=self.max_stretch,
+        )
         solve = partial(gauss_newton, basis=fields, additive=additive)
         return alternate(target, rotation, h, solve, steps, self.rounds, log, "refine")
 
@@ -313,7 +320,7 @@ class Descent:
                 for sigma in path["smoothing"]:
                     n = level_nodes(sigma, COARSE_NODES)
                     level = Objective(smoothed(first, sigma, n), smoothed(second, sigma, n))
-                    h = carry(h, previous, level, self.options.advanced.max_stretch)
+                    h = carry(h, previous, level, self.max_stretch)
                     rotation, h = self._bases(level, rotation, h, path["bases"], log.scratch("smoothing"))
                     previous = level
         h = self._enter(h, previous, self.work, rotation, log) if previous is not None else carry(None, None, self.work)
