@@ -63,9 +63,9 @@ class StepParams:
     cg_iterations : int
         Most conjugate-gradient iterations of a Gauss-Newton step in a local basis. Default 100.
     max_stretch : float
-        No descent step may make the correspondence lengthen an edge of the first grid by more than this factor
-        (its image on the second surface over the edge, both at area 1: :meth:`meshreg.objective.Objective.stretch`).
-        Default 10 (docs/method.md, "Stretch bound").
+        Modes "auto" and "dp+gd": no descent step may stretch an edge of the first grid by more than this factor
+        both in the square and on the surfaces (:meth:`meshreg.objective.Objective.stretch`). Default 10
+        (docs/method.md, "Stretch bound").
     """
 
     basis: int = 5
