@@ -1,23 +1,27 @@
 """The figures of issue 17 in one table: grid registration in mode "auto" at 101 x 101 and 401 x 401, the mesh
 front end, two meshes through the API and the whole ``meshreg register`` command on two PLY files.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_speed.py [--quick] [--faces 100000]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_speed.py [--quick] [--faces 100000] [--large 100000 1000000]
 
 Warm runs: the numba kernels are compiled (or loaded from their cache) by small registrations first. ``--quick``
 runs a subset in under a minute (three of the paper's pairs at 101 x 101, sine 2-3 at 201 x 201, the mesh front
 end, two meshes through the API); the full run adds every paper pair, 401 x 401, the command line and the distance
-matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local processes (``--jobs``). Times on a
-shared machine vary by +-30 %.
+matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local processes (``--jobs``). ``--large``
+adds the front end of one mesh per size, each in a fresh process, with its peak memory (a 1M-triangle mesh takes
+about 10 s and 1 GB). Times on a shared machine vary by +-30 %.
 """
 
 import argparse
 import datetime
+import multiprocessing
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -121,6 +125,45 @@ def matrix_rows(jobs: int) -> list[tuple[str, float, str]]:
     ]
 
 
+def _saved_mesh(faces: int, path: str) -> None:
+    """Write the first mesh of :func:`mesh_pair` (``faces`` triangles) to an npz file (in a process of its own)."""
+    vertices, triangles = mesh_pair(faces)[0]
+    np.savez(path, vertices=vertices, faces=triangles)
+
+
+def _front_end_cost(path: str) -> tuple[int, float, float]:
+    """Triangles, seconds and peak memory (MB above the process's peak before it) of the front end of the mesh in
+    ``path``, run in a fresh process after a small warm-up."""
+    small = random_disk_mesh(terrain_function(), 500, seed=0)
+    mesh_grids(*small[:2], Options())
+    data = np.load(path)
+    vertices, faces = data["vertices"], data["faces"]
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    seconds, _ = timed(mesh_grids, vertices, faces, Options())
+    return len(faces), seconds, (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+
+
+def large_rows(sizes: list[int]) -> list[tuple[str, float, str]]:
+    """The front end of one mesh per size (triangles), each in a fresh process: seconds and peak memory, and both
+    against the first size's (issue 17 asks for linear growth: at most 12x from 100k to 1M triangles)."""
+    rows, first = [], None
+    context = multiprocessing.get_context("spawn")
+    with tempfile.TemporaryDirectory() as folder:
+        for faces in sizes:
+            path = str(Path(folder) / f"mesh{faces}.npz")
+            with ProcessPoolExecutor(1, mp_context=context) as pool:
+                pool.submit(_saved_mesh, faces, path).result()
+            with ProcessPoolExecutor(1, mp_context=context) as pool:
+                count, seconds, memory = pool.submit(_front_end_cost, path).result()
+            first = first or (count, seconds, memory)
+            note = f"peak memory +{memory:.0f} MB"
+            if count != first[0]:
+                times, memories = seconds / first[1], memory / max(first[2], 1e-9)
+                note += f" (x{times:.1f} the time, x{memories:.1f} the memory at {first[0]})"
+            rows.append((f"mesh front end, {count} triangles, fresh process", seconds, note))
+    return rows
+
+
 def warm_up():
     """Compile (or load) the numba kernels of grids and meshes."""
     pair = paper_pairs(21, 21)[0]
@@ -134,12 +177,17 @@ def main():
     parser.add_argument("--quick", action="store_true", help="a subset, in under a minute")
     parser.add_argument("--faces", type=int, default=100_000, help="triangles per mesh")
     parser.add_argument("--jobs", type=int, default=2, help="local processes of the distance matrix")
+    parser.add_argument(
+        "--large", type=int, nargs="+", metavar="FACES", help="also the front end at these sizes (e.g. 100000 1000000)"
+    )
     args = parser.parse_args()
     np.seterr(all="ignore")
     warm_up()
     rows = grid_rows(args.quick) + mesh_rows(args.faces, args.quick)
     if not args.quick:
         rows += matrix_rows(args.jobs)
+    if args.large:
+        rows += large_rows(args.large)
     print(
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"{platform.python_implementation()} {platform.python_version()}, "

@@ -25,17 +25,22 @@ rotations M(y) = sum_x w_x K(x, y) R(x) held fixed, whose value differs from E_w
 lowers this fixed-target energy lowers E_w(h) too, and the Gauss-Newton solver runs on :class:`LocalObjective`
 unchanged (:meth:`LocalObjective.linearize` refreshes the target at every iteration).
 
-Pure numpy: the Gaussian is applied as two dense matrices over the cell centres (exact on non-uniform grids).
+numpy, the polar factors in numba: the Gaussian is applied as two dense matrices over the cell centres (exact on
+non-uniform grids).
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .objective import Objective
 from .srnf import cell_weights, shape_function
 
 TRUNCATE = 3.0  # the window's Gaussian is cut at this many standard deviations
+POLAR_DET = 1e-12  # polar factors by Newton's iteration where det C > this times |C|^3 (Frobenius), else by SVD
+POLAR_STEP = 1e-15  # the iteration stops when a step moves X (|X| = sqrt(3) at the end) by less than this
+POLAR_ITERATIONS = 60  # ... or gives up after this many steps (the SVD takes over)
 
 
 def gaussian_rows(centres: np.ndarray, window: float) -> np.ndarray:
@@ -70,12 +75,70 @@ class Window:
 
 
 def polar_rotations(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations R (..., 3, 3) maximizing trace(R^T C) for matrices C (..., 3, 3), and the maxima nu (...,)."""
-    u, s, vt = np.linalg.svd(c)
-    d = np.sign(np.linalg.det(u @ vt))  # +-1: u and vt are orthogonal
-    u[..., :, -1] *= d[..., None]
-    s[..., -1] *= d
-    return u @ vt, s.sum(axis=-1)
+    """Rotations R (..., 3, 3) maximizing trace(R^T C) for matrices C (..., 3, 3), and the maxima nu (...,).
+
+    Where det C > POLAR_DET |C|^3 (|C| the Frobenius norm), R is the orthogonal polar factor of C, found by
+    :func:`_newton_polar` (3-5x faster than a batched SVD); elsewhere (C near singular or turned by a reflection)
+    by the SVD: R = U diag(1, 1, d) V^T, d = det(U V^T)."""
+    shape = c.shape[:-2]
+    flat = np.ascontiguousarray(c.reshape(-1, 3, 3), dtype=float)
+    rotations, nu = np.empty_like(flat), np.empty(len(flat))
+    done = np.zeros(len(flat), dtype=bool)
+    _newton_polar(flat, rotations, nu, done)
+    rest = ~done
+    if rest.any():
+        u, s, vt = np.linalg.svd(flat[rest])
+        d = np.sign(np.linalg.det(u @ vt))  # +-1: u and vt are orthogonal
+        u[..., :, -1] *= d[..., None]
+        s[..., -1] *= d
+        rotations[rest], nu[rest] = u @ vt, s.sum(axis=-1)
+    return rotations.reshape(*shape, 3, 3), nu.reshape(shape)
+
+
+@numba.njit(cache=True)
+def _det3(x) -> float:
+    return (
+        x[0, 0] * (x[1, 1] * x[2, 2] - x[1, 2] * x[2, 1])
+        - x[0, 1] * (x[1, 0] * x[2, 2] - x[1, 2] * x[2, 0])
+        + x[0, 2] * (x[1, 0] * x[2, 1] - x[1, 1] * x[2, 0])
+    )
+
+
+@numba.njit(cache=True)
+def _newton_polar(c, rotations, nu, done):
+    """For each C of c (k, 3, 3) with det C > POLAR_DET |C|^3: its orthogonal polar factor R (a rotation) into
+    ``rotations``, trace(R^T C) into ``nu`` and True into ``done``, by Higham's scaled Newton iteration
+    X <- (g X + X^-T / g) / 2, g = (|X^-1| / |X|)^(1/2), until a step changes X by less than POLAR_STEP; the
+    others (and any that does not settle within POLAR_ITERATIONS) are left to the SVD."""
+    x, y = np.empty((3, 3)), np.empty((3, 3))
+    for k in range(c.shape[0]):
+        size = np.sqrt(np.sum(c[k] * c[k]))
+        if size == 0.0:
+            continue
+        x[:] = c[k] / size
+        if _det3(x) <= POLAR_DET:
+            continue
+        for _ in range(POLAR_ITERATIONS):
+            det = _det3(x)
+            xx, yy = 0.0, 0.0
+            for i in range(3):  # y = X^-T: the cofactors over the determinant
+                for j in range(3):
+                    i1, i2, j1, j2 = (i + 1) % 3, (i + 2) % 3, (j + 1) % 3, (j + 2) % 3
+                    y[i, j] = (x[i1, j1] * x[i2, j2] - x[i1, j2] * x[i2, j1]) / det
+                    xx += x[i, j] ** 2
+                    yy += y[i, j] ** 2
+            g = np.sqrt(np.sqrt(yy / xx))
+            step = 0.0
+            for i in range(3):
+                for j in range(3):
+                    new = 0.5 * (g * x[i, j] + y[i, j] / g)
+                    step += (new - x[i, j]) ** 2
+                    x[i, j] = new
+            if step < POLAR_STEP**2:
+                rotations[k] = x
+                nu[k] = np.sum(x * c[k])
+                done[k] = True
+                break
 
 
 def local_fit(q1: np.ndarray, q2: np.ndarray, win: Window) -> tuple[float, np.ndarray]:

@@ -38,10 +38,12 @@ def kabsch(h: np.ndarray) -> np.ndarray:
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
-def angle_between(r1: np.ndarray, r2: np.ndarray) -> float:
-    """Angle in degrees of the rotation r1 r2^T (0 when r1 == r2)."""
-    c = (np.trace(r1 @ r2.T) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+def angle_between(r1: np.ndarray, r2: np.ndarray) -> float | np.ndarray:
+    """Angle in degrees of the rotation r1 r2^T (0 when r1 == r2); for stacks of rotations (..., 3, 3), which
+    broadcast, the angles (...)."""
+    c = (np.einsum("...ij,...ij->...", r1, r2) - 1.0) / 2.0  # trace(r1 r2^T)
+    angle = np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+    return float(angle) if np.ndim(angle) == 0 else angle
 
 
 def similarity(rotation: np.ndarray, source: np.ndarray, target: np.ndarray) -> np.ndarray:

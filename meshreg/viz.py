@@ -253,19 +253,20 @@ def simplified(points: np.ndarray, faces: np.ndarray, face_values: np.ndarray, m
     afar, for drawing: vertices merged per cube of a 3D grid whose spacing sqrt(2 area / max_faces) leaves about
     max_faces / 2 occupied cubes on a surface, each at the mean of its vertices; triangles that collapse or repeat
     are dropped, the others keep their row of ``face_values`` (m, k). Meshes small enough are returned as given."""
+    from .mesh.surface import cube_labels
+
     if len(faces) <= max_faces:
         return points, faces, face_values
     tri = points[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
     spacing = np.sqrt(2.0 * area / max_faces) if area > 0 else np.ptp(points, axis=0).max() / np.sqrt(max_faces)
-    cubes = np.floor((points - points.min(axis=0)) / max(spacing, 1e-300)).astype(np.int64)
-    _, cluster = np.unique(cubes, axis=0, return_inverse=True)
-    cluster = cluster.ravel()
+    cluster = cube_labels(points, max(spacing, 1e-300))
     count = np.bincount(cluster)
     merged = np.stack([np.bincount(cluster, weights=points[:, k]) / count for k in range(3)], axis=1)
     new = cluster[faces]
     keep = (new[:, 0] != new[:, 1]) & (new[:, 1] != new[:, 2]) & (new[:, 0] != new[:, 2])
-    _, first = np.unique(np.sort(new[keep], axis=1), axis=0, return_index=True)
+    corners = np.sort(new[keep], axis=1)
+    _, first = np.unique((corners[:, 0] * len(count) + corners[:, 1]) * len(count) + corners[:, 2], return_index=True)
     rows = np.flatnonzero(keep)[np.sort(first)]
     return merged, new[rows], face_values[rows]
 

@@ -18,6 +18,7 @@ from meshreg.mesh import deform
 from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.harmonic import HarmonicMap, choose_corners
 from meshreg.mesh.topology import prepare_disk
+from meshreg.search import symmetry_map
 
 pytestmark = pytest.mark.slow  # one registration each (cached across the tests of a pair): 5-10 s
 
@@ -50,7 +51,7 @@ def material_corner_param(pair: deform.Pair, corners: tuple) -> tuple[float, flo
         disks.append(disk)
         uvs.append(HarmonicMap(disk)(choose_corners(disk, disk.input_ids(ids)))[0])
     uv2 = disks[1].to_input(uvs[1], len(pair.second[0]), [np.nan, np.nan])
-    tried = [pair.errors(deform.surface_points(disks[0], uvs[0], deform.unsymmetric(k, uv2))) for k in range(8)]
+    tried = [pair.errors(deform.surface_points(disks[0], uvs[0], symmetry_map(k, uv2))) for k in range(8)]
     return min((float(np.median(e)), float(np.percentile(e, 90))) for e in tried)
 
 

@@ -32,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from ..rotation import angle_between
 from ..search import cube_rotations
-from .surface import NORMAL_AGREEMENT, Surface, transform_normals, transform_points
+from .surface import NORMAL_AGREEMENT, Surface, cube_labels, transform_normals, transform_points
 
 FEATURE_VOXEL = 0.03  # voxel of the feature sample, in units of sqrt(area) of the smaller mesh (>= 1 edge length)
 FPFH_RADIUS = 5.0  # feature radius, in voxels (Open3D's usual choice)
@@ -99,9 +99,7 @@ class Cloud:
 
 def voxel_sample(surface: Surface, voxel: float) -> Cloud:
     """The mean vertex and mean normal of each occupied voxel of side ``voxel``."""
-    keys = np.floor((surface.vertices - surface.vertices.min(axis=0)) / voxel).astype(np.int64)
-    _, label = np.unique(keys, axis=0, return_inverse=True)
-    label = label.ravel()
+    label = cube_labels(surface.vertices, voxel)
     count = np.bincount(label)
     points = np.stack([np.bincount(label, surface.vertices[:, k]) for k in range(3)], axis=1) / count[:, None]
     normals = np.stack([np.bincount(label, surface.normals[:, k]) for k in range(3)], axis=1)
@@ -123,23 +121,36 @@ def fpfh(cloud: Cloud, radius: float) -> np.ndarray:
     return _fpfh(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(n, dtype=float), idx, FPFH_BINS)
 
 
+def flipped_fpfh(features: np.ndarray) -> np.ndarray:
+    """The FPFH (k, 33) of a cloud with every normal reversed, from its FPFH ``features``: reversing both normals
+    of a pair negates its angle features f1 and f3 and keeps f2, so the bins of f1 and of f3 run backwards."""
+    bins = np.arange(FPFH_BINS)
+    order = np.r_[bins[::-1], FPFH_BINS + bins, 3 * FPFH_BINS - 1 - bins]
+    return features[:, order]
+
+
 @numba.njit(cache=True)
 def _pair_features(p, n, i, j):
     """The three angle features (f1, f2, f3) of points i and j, and their distance (0: degenerate pair)."""
-    dp = p[j] - p[i]
-    d = max(np.sqrt(dp[0] ** 2 + dp[1] ** 2 + dp[2] ** 2), 1e-300)
-    a1, a2 = np.dot(n[i], dp) / d, np.dot(n[j], dp) / d
+    dx, dy, dz = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1], p[j, 2] - p[i, 2]
+    d = max(np.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
+    a1 = (n[i, 0] * dx + n[i, 1] * dy + n[i, 2] * dz) / d
+    a2 = (n[j, 0] * dx + n[j, 1] * dy + n[j, 2] * dz) / d
+    s, t, sign = i, j, 1.0
     if abs(a1) < abs(a2):  # the source is the point whose normal is closer to the line between them
-        s_n, t_n, line, f3 = n[j], n[i], -dp / d, -a2
-    else:
-        s_n, t_n, line, f3 = n[i], n[j], dp / d, a1
-    v = np.cross(line, s_n)
-    v_norm = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+        s, t, sign = j, i, -1.0
+    f3 = sign * (a1 if sign > 0 else a2)
+    lx, ly, lz = sign * dx / d, sign * dy / d, sign * dz / d
+    sx, sy, sz = n[s, 0], n[s, 1], n[s, 2]
+    tx, ty, tz = n[t, 0], n[t, 1], n[t, 2]
+    vx, vy, vz = ly * sz - lz * sy, lz * sx - lx * sz, lx * sy - ly * sx  # line x source normal
+    v_norm = np.sqrt(vx * vx + vy * vy + vz * vz)
     if v_norm <= 1e-12:
         return 0.0, 0.0, 0.0, 0.0
-    v = v / v_norm
-    w = np.cross(s_n, v)
-    return np.arctan2(np.dot(w, t_n), np.dot(s_n, t_n)), np.dot(v, t_n), f3, d
+    vx, vy, vz = vx / v_norm, vy / v_norm, vz / v_norm
+    wx, wy, wz = sy * vz - sz * vy, sz * vx - sx * vz, sx * vy - sy * vx  # source normal x v
+    f1 = np.arctan2(wx * tx + wy * ty + wz * tz, sx * tx + sy * ty + sz * tz)
+    return f1, vx * tx + vy * ty + vz * tz, f3, d
 
 
 @numba.njit(cache=True)
@@ -148,8 +159,8 @@ def _fpfh(p, n, idx, bins):
     k, m = idx.shape
     spfh = np.zeros((k, 3 * bins))
     weight = np.zeros((k, m))
+    found = np.zeros((m, 3), np.int64)
     for i in range(k):
-        found = np.zeros((m, 3), np.int64)
         count = 0
         for c in range(m):
             j = idx[i, c]
@@ -168,15 +179,20 @@ def _fpfh(p, n, idx, bins):
             for f in range(3):
                 spfh[i, f * bins + found[c, f]] += share
     out = spfh.copy()
+    neighbours = np.zeros(3 * bins)
     for i in range(k):
-        neighbours = np.zeros(3 * bins)
+        neighbours[:] = 0.0
         for c in range(m):
             if weight[i, c] > 0.0:
-                neighbours += weight[i, c] * spfh[idx[i, c]]
+                for b in range(3 * bins):
+                    neighbours[b] += weight[i, c] * spfh[idx[i, c], b]
         for f in range(3):
-            total = neighbours[f * bins : (f + 1) * bins].sum()
+            total = 0.0
+            for b in range(f * bins, (f + 1) * bins):
+                total += neighbours[b]
             if total > 0.0:
-                out[i, f * bins : (f + 1) * bins] += neighbours[f * bins : (f + 1) * bins] * (100.0 / total)
+                for b in range(f * bins, (f + 1) * bins):
+                    out[i, b] += neighbours[b] * (100.0 / total)
     return out
 
 
@@ -215,24 +231,36 @@ def ransac_poses(source: Cloud, target: Cloud, f_source, f_target, voxel: float,
     if not good.any():
         return []
     poses = _kabsch_batch(a[good], b[good])
-    limit = (RANSAC_DISTANCE * voxel) ** 2
-    counts = np.empty(len(poses), dtype=np.int64)
-    for start in range(0, len(poses), 1000):
-        chunk = poses[start : start + 1000]
-        moved = np.einsum("tij,kj->tki", chunk[:, :3, :3], ps) + chunk[:, None, :3, 3]
-        counts[start : start + 1000] = np.sum(np.sum((moved - pt) ** 2, axis=-1) < limit, axis=1)
+    counts = _explained(poses, ps, pt, (RANSAC_DISTANCE * voxel) ** 2)
+    order = np.argsort(-counts, kind="stable")
+    ranked, distinct = poses[order], counts[order] >= 3  # distinct: not the same as a pose kept already
     kept = []
-    for i in np.argsort(-counts, kind="stable"):
-        if len(kept) == RANSAC_KEEP or counts[i] < 3:
-            break
-        if all(not _same_pose(poses[i], k, voxel) for k in kept):
-            kept.append(poses[i])
+    while len(kept) < RANSAC_KEEP and distinct.any():
+        kept.append(ranked[np.argmax(distinct)])
+        distinct &= ~_same_pose(ranked, kept[-1], voxel)
     return kept
 
 
-def _same_pose(m1: np.ndarray, m2: np.ndarray, voxel: float) -> bool:
-    """Whether two poses (4 x 4) differ by less than 5 degrees and 3 voxels."""
-    return angle_between(m1[:3, :3], m2[:3, :3]) < 5.0 and np.linalg.norm(m1[:3, 3] - m2[:3, 3]) < 3 * voxel
+@numba.njit(cache=True)
+def _explained(poses, source, target, limit):
+    """Per pose (t, 4, 4): how many of the matches source (k, 3) -> target (k, 3) it moves within sqrt(limit)."""
+    counts = np.zeros(len(poses), dtype=np.int64)
+    for t in range(len(poses)):
+        m = poses[t]
+        for k in range(len(source)):
+            d2 = 0.0
+            for a in range(3):
+                x = m[a, 0] * source[k, 0] + m[a, 1] * source[k, 1] + m[a, 2] * source[k, 2] + m[a, 3]
+                d2 += (x - target[k, a]) ** 2
+            if d2 < limit:
+                counts[t] += 1
+    return counts
+
+
+def _same_pose(poses: np.ndarray, pose: np.ndarray, voxel: float) -> np.ndarray:
+    """Whether each of the poses (t, 4, 4) differs from ``pose`` (4 x 4) by less than 5 degrees and 3 voxels."""
+    near = np.linalg.norm(poses[:, :3, 3] - pose[:3, 3], axis=1) < 3 * voxel
+    return (angle_between(poses[:, :3, :3], pose[:3, :3]) < 5.0) & near
 
 
 def rigid_step(x, n, p) -> np.ndarray:
@@ -310,12 +338,15 @@ def overlap_scores(first: Cloud, first_surface: Surface, second: Cloud, second_s
     scores = []
     for cloud, surface, m in ((second, first_surface, matrix), (first, second_surface, inverse)):
         moved = cloud.moved(m)
-        dist, j = surface.tree.query(moved.points)
+        t = levels[:, None] * surface.edge
+        reach = SCORE_REACH * np.maximum(t, surface.edge)
+        # points beyond the reach do not count: the search stops there (a point far off a sheet visits many cells)
+        dist, j = surface.tree.query(moved.points, distance_upper_bound=float(reach.max()) * (1 + 1e-9))
+        j = np.minimum(j, len(surface.vertices) - 1)
         normal = surface.normals[j]
         plane = np.abs(np.sum(normal * (moved.points - surface.vertices[j]), axis=1))
         valid = ~surface.rim[j] & (np.abs(np.sum(moved.normals * normal, axis=1)) >= NORMAL_AGREEMENT)
-        t = levels[:, None] * surface.edge
-        near = valid & (dist <= SCORE_REACH * np.maximum(t, surface.edge))
+        near = valid & (dist <= reach)
         scores.append(np.mean(np.where(near, np.maximum(0.0, 1.0 - (plane / t) ** 2), 0.0), axis=1))
     return np.minimum(*scores)
 
@@ -368,10 +399,10 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
         shrink = _similarity(np.eye(3), s, np.zeros(3), np.zeros(3))
         sample2s = sample2.moved(shrink)
         f1 = fpfh(sample1, FPFH_RADIUS * voxel)
-        for flip in (1.0, -1.0):
+        f2 = fpfh(sample2s, FPFH_RADIUS * voxel)
+        for flip, features in ((1.0, f2), (-1.0, flipped_fpfh(f2))):
             flipped = Cloud(sample2s.points, flip * sample2s.normals)
-            f2 = fpfh(flipped, FPFH_RADIUS * voxel)
-            for pose in ransac_poses(flipped, sample1, f2, f1, voxel, rng):
+            for pose in ransac_poses(flipped, sample1, features, f1, voxel, rng):
                 candidates.append((pose @ shrink, "features"))
         c1, axes1 = principal_frame(sample1.points)
         c2, axes2 = principal_frame(sample2.points)

@@ -43,7 +43,10 @@ def geodesic_turning(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) 
     >>> np.degrees(geodesic_turning(v, f, np.arange(4))).round(6).tolist()
     [90.0, 90.0, 90.0, 90.0]
     """
-    return np.pi - angle_sums(vertices, faces)[np.asarray(loop)]
+    loop, faces = np.asarray(loop), np.asarray(faces, dtype=np.int64)
+    on_loop = np.zeros(len(vertices), dtype=bool)
+    on_loop[loop] = True
+    return np.pi - angle_sums(vertices, faces[on_loop[faces].any(axis=1)])[loop]  # the triangles at the loop only
 
 
 def sharp_corners(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) -> np.ndarray | None:

@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
-from ..search import symmetry_map
+from ..search import inverse_symmetry, symmetry_map
 from .plane import interpolate, locate
 from .samples import face_scan_crop, random_disk_mesh, remeshed_range_scan, terrain_function
 from .topology import triangle_areas
@@ -370,19 +370,13 @@ def matched_points(mr, n_second: int) -> np.ndarray:
     return first_points(mr, mr.second.to_input(mr.matched_uv2, n_second, [np.nan, np.nan]))
 
 
-def unsymmetric(k: int, uv: np.ndarray) -> np.ndarray:
-    """sigma_k^-1 (uv): the first's uv (n, 2) that h = sigma_k matches with the second's uv."""
-    probe = np.array([[0.1, 0.2], [0.7, 0.4]])
-    inverse = next(j for j in range(8) if np.allclose(symmetry_map(j, symmetry_map(k, probe)), probe))
-    return symmetry_map(inverse, uv)
-
-
 def parametrization_points(mr, n_second: int, symmetry: int | None = None) -> np.ndarray:
     """The parametrization alone, no optimization: for each input vertex of the second mesh, the point of the
     first with the same uv up to the symmetry of the square (h = sigma; default the registration's own
     ``result.symmetry``), shape (n_second, 3)."""
     k = mr.result.symmetry if symmetry is None else symmetry
-    return first_points(mr, unsymmetric(k, mr.second.to_input(mr.uv2, n_second, [np.nan, np.nan])))
+    uv2 = mr.second.to_input(mr.uv2, n_second, [np.nan, np.nan])
+    return first_points(mr, symmetry_map(inverse_symmetry(k), uv2))  # the first's uv that h = sigma_k matches
 
 
 def material_corners(pair: Pair, mr) -> tuple[tuple, tuple]:

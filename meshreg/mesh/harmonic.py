@@ -6,6 +6,8 @@ cotangent weights (libigl's harmonic map) as an option (they can flip triangles 
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -171,7 +173,8 @@ def factorize(a: sp.csc_matrix):
 class HarmonicMap:
     """The factorized Laplacian of a disk mesh: maps any placement of the corners on its boundary to uv.
 
-    One sparse LU serves every corner placement (the corner search solves once per placement).
+    One sparse LU serves every corner placement (the corner search solves once per placement); it is computed at
+    the first placement, so a map that is never asked for (a pair registered by its common region) costs nothing.
 
     Parameters
     ----------
@@ -185,12 +188,18 @@ class HarmonicMap:
         if weights not in ("mean-value", "cotangent"):
             raise InputError("weights must be 'mean-value' or 'cotangent'")
         self.disk = disk
-        v, f, loop = disk.vertices, disk.faces, disk.boundary
-        w = _weights(v, f, weights)
+        self.weights = weights
+        self.interior = np.setdiff1d(np.arange(len(disk.vertices)), disk.boundary)
+
+    @cached_property
+    def _system(self):
+        """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
+        without interior vertices)."""
+        v, f, loop = self.disk.vertices, self.disk.faces, self.disk.boundary
+        w = _weights(v, f, self.weights)
         lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
-        self.interior = np.setdiff1d(np.arange(len(v)), loop)
-        self._coupling = lap[self.interior][:, loop]
-        self._lu = factorize(lap[self.interior][:, self.interior].tocsc()) if len(self.interior) else None
+        coupling = lap[self.interior][:, loop]
+        return coupling, factorize(lap[self.interior][:, self.interior].tocsc()) if len(self.interior) else None
 
     def __call__(self, corner_pos: np.ndarray):
         """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from
@@ -200,8 +209,9 @@ class HarmonicMap:
         f, loop = disk.faces, disk.boundary
         uv = np.zeros((len(disk.vertices), 2))
         uv[loop] = _boundary_uv(disk, corner_pos)
-        if self._lu is not None:
-            uv[self.interior] = self._lu.solve(np.ascontiguousarray(-(self._coupling @ uv[loop])))
+        coupling, lu = self._system
+        if lu is not None:
+            uv[self.interior] = lu.solve(np.ascontiguousarray(-(coupling @ uv[loop])))
         d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
         signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
         info = {

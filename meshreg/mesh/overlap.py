@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from ..rotation import kabsch
 from .align import Alignment, align
-from .surface import Surface, transform_points
+from .surface import Surface
 from .topology import DiskMesh, prepare_disk, triangle_areas
 from .warp import arap_warp
 
@@ -100,6 +100,8 @@ class Overlap:
         Time taken to find it.
     reason : str
         Why the meshes are registered whole although they may not cover the same region (regime "whole").
+    target : Surface
+        The first disk as a :class:`~meshreg.mesh.surface.Surface` (its queries cached for the next steps).
     """
 
     regime: str
@@ -113,6 +115,7 @@ class Overlap:
     slide: float = float("nan")
     seconds: float = 0.0
     reason: str = ""
+    target: Surface | None = field(default=None, repr=False, compare=False)
 
     def summary(self) -> dict:
         """The overlap as plain values (for ``result.info``)."""
@@ -293,11 +296,11 @@ def slide(surface: Surface, keep: np.ndarray, rms: float) -> float:
     return float(rms / np.sqrt(weakest)) if weakest > 0 else np.inf
 
 
-def _sides(first: DiskMesh, second: DiskMesh, target: Surface, positions: np.ndarray, edge: float):
-    """Both sides of the overlap with the second's vertices at ``positions`` in the first's frame, the RMS distance
+def _sides(first: DiskMesh, second: DiskMesh, target: Surface, placed: Surface, edge: float):
+    """Both sides of the overlap with the second at ``placed`` (its Surface in the first's frame), the RMS distance
     over the overlap and the fraction that coincides."""
-    one = _side(first.vertices, first, Surface(positions, second.faces), edge)
-    two = _side(positions, second, target, edge)
+    one = _side(first.vertices, first, placed, edge)
+    two = _side(placed.vertices, second, target, edge)
     return one, two, *_coincidence(one, two, edge)
 
 
@@ -326,7 +329,7 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
     s1, s2 = Surface(first.vertices, first.faces), Surface(second.vertices, second.faces)
     alignment = align(s1, s2)
     edge = max(s1.edge, alignment.scale * s2.edge)
-    posed = transform_points(alignment.matrix, second.vertices)
+    posed = s2.moved(alignment.matrix)
     one, two, rms, coincide = _sides(first, second, s1, posed, edge)
     slid = slide(s1, one.signed >= 0, rms) / edge
     if rms <= TIGHT * edge:
@@ -336,7 +339,9 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
     else:
         regime, reason = "deformed", ""
     seconds = time.perf_counter() - start
-    return Overlap(regime, one, two, alignment, posed, edge, {"pose": rms}, coincide, slid, seconds, reason)
+    return Overlap(
+        regime, one, two, alignment, posed.vertices, edge, {"pose": rms}, coincide, slid, seconds, reason, s1
+    )
 
 
 def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray) -> Overlap:
@@ -357,14 +362,14 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
         Per vertex of the second disk, its matched point on the first (NaN: none).
     """
     start = time.perf_counter()
-    target = Surface(first.vertices, first.faces)
+    target = posed.target
     scale = posed.alignment.scale
     rest = scale * second.vertices
     known = np.all(np.isfinite(matches), axis=1)
     c0, c1 = rest[known].mean(axis=0), matches[known].mean(axis=0)
     rotation = kabsch((rest[known] - c0).T @ (matches[known] - c1))
     warped = arap_warp((rest - c0) @ rotation.T + c1, second.faces, target)
-    one, two, rms, coincide = _sides(first, second, target, warped, posed.edge)
+    one, two, rms, coincide = _sides(first, second, target, Surface(warped, second.faces), posed.edge)
     rms_all = {**posed.rms, "warp": rms}
     slid = posed.slide
     if posed.rms["pose"] <= RIGID_RATIO * rms:
@@ -375,7 +380,9 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
         positions = warped
         slid = float("nan")
     seconds = posed.seconds + time.perf_counter() - start
-    return Overlap(regime, one, two, posed.alignment, positions, posed.edge, rms_all, coincide, slid, seconds, reason)
+    return Overlap(
+        regime, one, two, posed.alignment, positions, posed.edge, rms_all, coincide, slid, seconds, reason, target
+    )
 
 
 def trim(disk: DiskMesh, signed: np.ndarray) -> tuple[DiskMesh, sp.csr_matrix]:

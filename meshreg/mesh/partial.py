@@ -28,7 +28,7 @@ from .align import Cloud, icp
 from .harmonic import HarmonicMap, choose_corners
 from .overlap import Overlap, trim
 from .resample import resample_grid
-from .surface import Surface, transform_points
+from .surface import Surface
 from .topology import DiskMesh
 
 REFINE_ITERATIONS = 30  # ICP iterations of the rigid pose on the trimmed parts (exact closest points)
@@ -55,13 +55,17 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     start = time.perf_counter()
     trimmed1, _ = trim(first, overlap.first.signed)
     trimmed2, carry2 = trim(second, overlap.second.signed)
-    positions = carry2 @ overlap.positions
     target = Surface(trimmed1.vertices, trimmed1.faces)
     pose = None
     if overlap.regime == "rigid":
-        cloud = Cloud(trimmed2.vertices, Surface(trimmed2.vertices, trimmed2.faces).normals)
-        pose, _ = icp(cloud, target, overlap.alignment.matrix, iterations=REFINE_ITERATIONS, exact=True)
-        positions = transform_points(pose, trimmed2.vertices)
+        own = Surface(trimmed2.vertices, trimmed2.faces)
+        pose, _ = icp(
+            Cloud(own.vertices, own.normals), target, overlap.alignment.matrix, iterations=REFINE_ITERATIONS, exact=True
+        )
+        placed = own.moved(pose)  # the trimmed second in the first's frame
+    else:
+        placed = Surface(carry2 @ overlap.positions, trimmed2.faces)
+    positions = placed.vertices
     corners = choose_corners(trimmed1)
     uv1, corner_info = HarmonicMap(trimmed1, options.weights)(corners)
     closest, _, triangle, weights = target.project(positions)
@@ -69,9 +73,9 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     n = options.resolution
     grid1 = resample_grid(trimmed1.vertices, trimmed1.faces, uv1, n, n)
     # the second at the first's nodes: the point of the trimmed second whose place in the first's frame is closest
-    _, _, triangle, weights = Surface(positions, trimmed2.faces).project(grid1.points.reshape(-1, 3))
+    _, _, triangle, weights = placed.project(grid1.points.reshape(-1, 3))
     grid2 = GridSurface.from_array(
-        Surface(trimmed2.vertices, trimmed2.faces).at(trimmed2.vertices, triangle, weights).reshape(n, n, 3),
+        placed.at(trimmed2.vertices, triangle, weights).reshape(n, n, 3),
         grid1.r,
         grid1.t,
     )

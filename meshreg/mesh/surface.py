@@ -6,12 +6,15 @@ numpy/scipy, with the closest-point search in numba.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .topology import boundary_edges
 
 NORMAL_AGREEMENT = np.cos(np.radians(60.0))  # |n1 . n2| below this: a pair of points on different sheets
 RIM_CANDIDATES = 16  # boundary segments (nearest midpoints) tried per point for its exact distance to the rim
@@ -27,25 +30,24 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals (n, 3) (zero for unreferenced vertices)."""
     fn = face_normals(vertices, faces)
-    out = np.zeros_like(vertices, dtype=float)
-    for k in range(3):
-        np.add.at(out, faces[:, k], fn)
+    corners, n = faces.ravel(), len(vertices)
+    out = np.stack([np.bincount(corners, np.repeat(fn[:, c], 3), minlength=n) for c in range(3)], axis=1)
     norm = np.linalg.norm(out, axis=1, keepdims=True)
     return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
-
-
-def boundary_edges(faces: np.ndarray) -> np.ndarray:
-    """Edges (b, 2) used by one triangle only (the rim and the rims of holes)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return e[counts[inverse.ravel()] == 1]
 
 
 def median_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Median length of the triangles' edges."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
     return float(np.median(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1)))
+
+
+def cube_labels(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Per point (n, 3), the index (n,) of the cube of side ``spacing`` that holds it, among the occupied cubes
+    in the order of their (x, y, z) grid indices."""
+    keys = np.floor((points - points.min(axis=0)) / spacing).astype(np.int64)
+    size = keys.max(axis=0) + 1  # one int64 per cube: much faster than np.unique(axis=0)
+    return np.unique((keys[:, 0] * size[1] + keys[:, 1]) * size[2] + keys[:, 2], return_inverse=True)[1].ravel()
 
 
 @numba.njit(cache=True)
@@ -115,12 +117,26 @@ def _closest_points(points, vertices, faces, candidates, closest, weights, trian
                 triangle[k] = f
 
 
-def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance (...,) from points (..., 3) to the segments from a to b (..., 3)."""
-    ab = b - a
-    length2 = np.maximum(np.sum(ab * ab, axis=-1), 1e-300)
-    t = np.clip(np.sum((points - a) * ab, axis=-1) / length2, 0.0, 1.0)
-    return np.linalg.norm(points - (a + t[..., None] * ab), axis=-1)
+@numba.njit(cache=True)
+def _nearest_segment(points, vertices, segments, candidates):
+    """Per point (k, 3), the distance to the closest of its candidate segments (k, c) (rows of segments (s, 2),
+    vertex ids)."""
+    out = np.empty(len(points))
+    for k in range(len(points)):
+        best = np.inf
+        for c in range(candidates.shape[1]):
+            a, b = segments[candidates[k, c], 0], segments[candidates[k, c], 1]
+            along, length2 = 0.0, 0.0
+            for x in range(3):
+                along += (points[k, x] - vertices[a, x]) * (vertices[b, x] - vertices[a, x])
+                length2 += (vertices[b, x] - vertices[a, x]) ** 2
+            t = min(max(along / max(length2, 1e-300), 0.0), 1.0)
+            gap2 = 0.0
+            for x in range(3):
+                gap2 += (points[k, x] - vertices[a, x] - t * (vertices[b, x] - vertices[a, x])) ** 2
+            best = min(best, gap2)
+        out[k] = np.sqrt(best)
+    return out
 
 
 @dataclass
@@ -224,9 +240,22 @@ class Surface:
             return np.full(len(points), np.inf)
         k = min(RIM_CANDIDATES, len(self.rim_edges))
         _, idx = self._rim_tree.query(points, k=k)
-        idx = idx.reshape(len(points), k)
-        ends = self.vertices[self.rim_edges[idx]]  # (p, k, 2, 3)
-        return segment_distance(points[:, None, :], ends[..., 0, :], ends[..., 1, :]).min(axis=1)
+        points = np.ascontiguousarray(points)
+        return _nearest_segment(points, self.vertices, self.rim_edges, idx.reshape(len(points), k))
+
+    def moved(self, matrix: np.ndarray) -> Surface:
+        """The surface moved by a similarity ``matrix`` (4 x 4): what does not depend on the pose (the rim, the
+        triangles around each vertex) is kept, lengths scale, the KD-trees are rebuilt when asked for."""
+        scale = float(np.cbrt(np.linalg.det(matrix[:3, :3])))
+        out = copy.copy(self)
+        for cached in ("tree", "_rim_tree", "vertex_rim_distance"):
+            out.__dict__.pop(cached, None)
+        out.vertices = np.ascontiguousarray(transform_points(matrix, self.vertices))
+        out.normals = transform_normals(matrix, self.normals)
+        out.edge, out.area = scale * self.edge, scale**2 * self.area
+        if "vertex_rim_distance" in self.__dict__:
+            out.vertex_rim_distance = scale * self.vertex_rim_distance
+        return out
 
 
 def transform_points(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:

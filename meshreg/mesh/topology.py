@@ -175,16 +175,18 @@ def prepare_disk(
         f = f[~_repeated_corner(f)]
         welded = int(np.sum(aliases != np.arange(len(v))))
         report.append(f"welded {welded} coincident vertices (the mesh came in {pieces} pieces)")
-    f = _consistent_orientation(f, cleanup, report)
-    f = _unpinched(f, cleanup, report)
+    edges = _edges(f)  # recomputed only when a step changes the faces
+    f, edges = _unchanged_or_new(_consistent_orientation(f, cleanup, report, edges), f, edges)
+    f, edges = _unchanged_or_new(_unpinched(f, cleanup, report, edges), f, edges)
     n = len(v)
-    f = _largest_component(f, n, cleanup, report)
-    loops = _boundary_loops(f)
+    f, edges = _unchanged_or_new(_largest_component(f, n, cleanup, report), f, edges)
+    loops = _boundary_loops(f, edges)
     if len(loops) > 1 and fill_holes:
         v, f, added, rim = _fill_holes(v, f, loops)
+        edges = _edges(f)
         report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
     if cleanup:
-        f = _without_ears(v, f, report)
+        f = _without_ears(v, f, report, edges)
     used = np.unique(f)
     original = used[used < n]
     if len(original) < n:
@@ -192,7 +194,12 @@ def prepare_disk(
     remap = np.full(len(v), -1)
     remap[used] = np.arange(len(used))
     v, f = v[used], remap[f]
-    return DiskMesh(v, f, np.array(_single_loop(v, f)), original, report, aliases)
+    return DiskMesh(v, f, np.array(_single_loop(v, f, _edges(f))), original, report, aliases)
+
+
+def _unchanged_or_new(new: np.ndarray, old: np.ndarray, edges: tuple) -> tuple[np.ndarray, tuple]:
+    """The faces a cleanup step returned and their :func:`_edges`: those of ``old`` when the step kept them."""
+    return new, edges if new is old else _edges(new)
 
 
 def _checked_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
@@ -240,9 +247,8 @@ def _drop_degenerate(v: np.ndarray, f: np.ndarray, cleanup: bool, report: list) 
     return f[~bad]
 
 
-def _consistent_orientation(f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
-    """Faces wound like their neighbours; non-manifold edges are refused."""
-    edges = _edges(f)
+def _consistent_orientation(f: np.ndarray, cleanup: bool, report: list, edges: tuple) -> np.ndarray:
+    """Faces wound like their neighbours (``edges``: :func:`_edges` of f); non-manifold edges are refused."""
     counts = edges[3]
     if np.any(counts > 2):
         raise InputError(
@@ -259,15 +265,17 @@ def _consistent_orientation(f: np.ndarray, cleanup: bool, report: list) -> np.nd
     return np.where(flipped[:, None], f[:, ::-1], f)
 
 
-def _unpinched(f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
-    """With ``cleanup``, faces without the triangles around vertices where the boundary touches itself."""
+def _unpinched(f: np.ndarray, cleanup: bool, report: list, edges: tuple) -> np.ndarray:
+    """With ``cleanup``, faces without the triangles around vertices where the boundary touches itself
+    (``edges``: :func:`_edges` of f)."""
     for _ in range(10):
-        starts, uses = np.unique(_boundary_edges(f)[:, 0], return_counts=True)
+        starts, uses = np.unique(boundary_edges(f, edges)[:, 0], return_counts=True)
         pinched = starts[uses > 1]  # the boundary passes twice through these vertices
         if not (cleanup and len(pinched)):
             break
         touching = np.isin(f, pinched).any(axis=1)
         f = f[~touching]
+        edges = _edges(f)
         report.append(
             f"removed {int(touching.sum())} triangles around {len(pinched)} vertices where the boundary touches itself"
         )
@@ -289,7 +297,7 @@ def _largest_component(f: np.ndarray, n: int, cleanup: bool, report: list) -> np
     return f[keep]
 
 
-def _without_ears(v: np.ndarray, f: np.ndarray, report: list) -> np.ndarray:
+def _without_ears(v: np.ndarray, f: np.ndarray, report: list, edges: tuple) -> np.ndarray:
     """Faces without boundary ears (two sides on the boundary), in one pass: peeling again would eat thin strips
     triangle by triangle.
 
@@ -299,12 +307,12 @@ def _without_ears(v: np.ndarray, f: np.ndarray, report: list) -> np.ndarray:
     the ears at those corners are kept (a square sheet's corner triangles are ears)."""
     if len(f) <= 1:
         return f
-    _, _, inverse, counts = _edges(f)
+    _, _, inverse, counts = edges
     on_boundary = (counts[inverse] == 1).reshape(3, -1).T  # (m, 3): side k runs from corner k to corner k + 1
     ears = on_boundary.sum(axis=1) >= 2
     if not ears.any() or ears.all():
         return f
-    loops = _boundary_loops(f)
+    loops = _boundary_loops(f, edges)
     corners = sharp_corners(v, f, loops[0]) if len(loops) == 1 else None
     if corners is not None:
         apex = f[np.arange(len(f)), (np.argmax(on_boundary & np.roll(on_boundary, 1, axis=1), axis=1))]
@@ -315,9 +323,10 @@ def _without_ears(v: np.ndarray, f: np.ndarray, report: list) -> np.ndarray:
     return f[~ears]
 
 
-def _single_loop(v: np.ndarray, f: np.ndarray) -> list:
-    """The one boundary loop of a disk; a closed surface, several loops or another Euler characteristic is refused."""
-    loops = _boundary_loops(f)
+def _single_loop(v: np.ndarray, f: np.ndarray, edges: tuple) -> list:
+    """The one boundary loop of a disk (``edges``: :func:`_edges` of f); a closed surface, several loops or another
+    Euler characteristic is refused."""
+    loops = _boundary_loops(f, edges)
     if not loops:
         raise InputError("the surface is closed (no boundary): cut it open first (a disk is needed)")
     if len(loops) > 1:
@@ -325,8 +334,7 @@ def _single_loop(v: np.ndarray, f: np.ndarray) -> list:
         raise InputError(
             f"the mesh has {len(loops)} boundary loops (sizes {sizes[:5]}): fill its holes so that one loop is left"
         )
-    _, uniq, _, _ = _edges(f)
-    euler = len(v) - len(uniq) + len(f)
+    euler = len(v) - len(edges[1]) + len(f)
     if euler != 1:
         raise InputError(f"the mesh is not a disk (Euler characteristic {euler}, a disk has 1)")
     return loops[0]
@@ -404,7 +412,7 @@ def boundary_sizes(faces) -> list[int]:
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return []
-    edges = _boundary_edges(f)
+    edges = boundary_edges(f)
     if len(edges) == 0:
         return []
     n = int(f.max()) + 1
@@ -413,14 +421,24 @@ def boundary_sizes(faces) -> list[int]:
     return sorted(np.bincount(labels)[np.unique(labels)].tolist(), reverse=True)
 
 
-def _boundary_edges(faces):
-    e, _, inverse, counts = _edges(faces)
+def boundary_edges(faces: np.ndarray, edges: tuple | None = None) -> np.ndarray:
+    """Directed edges (b, 2) used by one triangle only (the rim and the rims of holes), in the faces' order
+    (``edges``: :func:`_edges` of the faces, when known)."""
+    e, _, inverse, counts = _edges(faces) if edges is None else edges
     return e[counts[inverse] == 1]
 
 
-def _boundary_loops(faces) -> list[list[int]]:
-    """Boundary loops following the faces' directed edges (so the interior lies to their left)."""
-    directed = _boundary_edges(faces)
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges (e, 2) of a triangle mesh, each once as (lower id, higher id), sorted."""
+    _, uniq, _, _ = _edges(faces)
+    base = int(faces.max()) + 1
+    return np.stack([uniq // base, uniq % base], axis=1)
+
+
+def _boundary_loops(faces, edges: tuple | None = None) -> list[list[int]]:
+    """Boundary loops following the faces' directed edges (so the interior lies to their left; ``edges``:
+    :func:`_edges` of the faces, when known)."""
+    directed = boundary_edges(faces, edges)
     nxt = {}
     for a, b in directed:
         if a in nxt:

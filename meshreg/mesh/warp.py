@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from .align import rigid_step
 from .harmonic import factorize
 from .surface import NORMAL_AGREEMENT, Surface, transform_points, vertex_normals
+from .topology import unique_edges
 
 WARP_WEIGHTS = (0.01, 0.03, 0.1, 0.3, 1.0)  # data weight per vertex against the ARAP energy, annealed
 WARP_ROUNDS = 10  # iterations (closest points, rigid step, rotations, solve) at each weight
@@ -25,18 +26,11 @@ WARP_TRIM = 3.0  # pairs farther than this times the median distance are left ou
 WARP_TRIM_FLOOR = 2.0  # ... but never those within this many edge lengths of the first mesh
 
 
-def _edges(faces: np.ndarray) -> np.ndarray:
-    """Undirected edges (e, 2) of a triangle mesh, each once."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
-
-
-def _rotations(rest: np.ndarray, current: np.ndarray, i: np.ndarray, j: np.ndarray, n: int) -> np.ndarray:
-    """Per vertex, the rotation (n, 3, 3) that best turns its rest edges into its current ones (Kabsch)."""
-    cov = np.zeros((n, 3, 3))
-    outer = np.einsum("ea,eb->eab", rest[i] - rest[j], current[i] - current[j])
-    np.add.at(cov, i, outer)
-    np.add.at(cov, j, outer)
+def _rotations(rest_edges: np.ndarray, current: np.ndarray, ends: sp.csr_matrix, i, j) -> np.ndarray:
+    """Per vertex, the rotation (n, 3, 3) that best turns its rest edges (e, 3) into its current ones (Kabsch);
+    ``ends`` (n, e) is 1 where a vertex is an end of an edge."""
+    outer = np.einsum("ea,eb->eab", rest_edges, current[i] - current[j])
+    cov = (ends @ outer.reshape(len(outer), 9)).reshape(-1, 3, 3)
     u, _, vt = np.linalg.svd(cov)
     d = np.sign(np.linalg.det(np.einsum("nji,nkj->nik", vt, u)))
     d[d == 0] = 1.0
@@ -60,11 +54,13 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarra
         The vertices after the warp.
     """
     n = len(rest)
-    edges = _edges(faces)
+    edges = unique_edges(faces)
     i, j = edges[:, 0], edges[:, 1]
-    ones = np.ones(len(edges))
-    adjacency = sp.csr_matrix((np.r_[ones, ones], (np.r_[i, j], np.r_[j, i])), shape=(n, n))
-    laplacian = sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
+    k = np.arange(len(edges))
+    incidence = sp.csr_matrix((np.r_[np.ones(len(k)), -np.ones(len(k))], (np.r_[i, j], np.r_[k, k])), (n, len(k)))
+    ends = abs(incidence)
+    laplacian = incidence @ incidence.T  # the graph Laplacian
+    rest_edges = rest[i] - rest[j]
     current = rest.copy()
     for weight in WARP_WEIGHTS:
         for _ in range(WARP_ROUNDS):
@@ -75,12 +71,9 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarra
                 current = transform_points(rigid_step(current[held], tn[held], foot[held]), current)
             plane = np.sum(tn * (current - foot), axis=1)
             goal = current - plane[:, None] * tn
-            rot = _rotations(rest, current, i, j, n)
+            rot = _rotations(rest_edges, current, ends, i, j)
             # ARAP right-hand side: sum over neighbours of (R_i + R_j) / 2 (rest_i - rest_j)
-            turned = 0.5 * np.einsum("eab,eb->ea", rot[i] + rot[j], rest[i] - rest[j])
-            rhs = np.zeros((n, 3))
-            np.add.at(rhs, i, turned)
-            np.add.at(rhs, j, -turned)
+            rhs = incidence @ (0.5 * np.einsum("eab,eb->ea", rot[i] + rot[j], rest_edges))
             data = weight * held + 1e-9
             rhs += data[:, None] * np.where(held[:, None], goal, current)
             current = factorize((laplacian + sp.diags(data)).tocsc()).solve(rhs)
