@@ -148,8 +148,9 @@ def descend(
             if is_valid(candidate):
                 e = objective.energy(rotation, candidate)
                 if e < state.energy:
-                    accepted = (candidate, e)
-                    break
+                    if objective.within_stretch(candidate, params.max_stretch):
+                        accepted = (candidate, e)
+                    break  # E drops only by stretching beyond the bound: the round ends
             delta *= 0.5
         if accepted is None or _accept(state, accepted[0], rotation, accepted[1], params, callback):
             break
@@ -219,8 +220,9 @@ def gauss_newton(
                 new_rotation = Rotation.from_rotvec(step[-3:]).as_matrix() @ state.rotation
                 e = objective.energy(new_rotation, candidate)
                 if e < state.energy:
-                    accepted = (candidate, new_rotation, e)
-                    break
+                    if objective.within_stretch(candidate, params.max_stretch):
+                        accepted = (candidate, new_rotation, e)
+                    break  # E drops only by stretching beyond the bound: the round ends (no damping finds more)
             lam = max(lam, 1e-6) * 4.0
         if accepted is None or _accept(state, *accepted, params, callback):
             break

@@ -22,7 +22,7 @@ from functools import cached_property
 import numpy as np
 
 from .cell_jacobian import CellJacobian, gram_pattern
-from .diffeo import identity
+from .diffeo import identity, is_valid
 from .grid import GridSurface
 from .residual import Residual, coordinate_residual, node_weights
 from .rotation import kabsch
@@ -76,6 +76,46 @@ class Objective:
     def node_weights(self) -> np.ndarray:
         """Area weights (M, N) of the first surface's nodes, summing to 1 (:func:`meshreg.residual.node_weights`)."""
         return node_weights(self.first.points)
+
+    @cached_property
+    def edge_lengths(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lengths of the first surface's grid edges along r (M-1, N) and t (M, N-1), at area 1, each at least
+        half the median edge (a collapsed side of the first surface must not make every stretch infinite)."""
+        along_r = np.linalg.norm(np.diff(self.first.points, axis=0), axis=-1)
+        along_t = np.linalg.norm(np.diff(self.first.points, axis=1), axis=-1)
+        floor = 0.5 * np.median(np.concatenate([along_r.ravel(), along_t.ravel()]))
+        return np.maximum(along_r, floor), np.maximum(along_t, floor)
+
+    def stretch(self, h: np.ndarray) -> float:
+        """The largest factor by which h stretches an edge of the first grid both in the square and on the surfaces.
+
+        For each edge: the smaller of |h(x_k+1) - h(x_k)| over |x_k+1 - x_k| (in the parameter square) and the length
+        of the edge's image on the second surface (trapezoid rule on |Dc2(h) dh| at its two ends) over its chord on
+        the first, both surfaces at area 1. Where h squeezes a long stretch of the second surface into one cell of
+        the first, both are large; for two samplings of one shape the exact h may have steep slopes, but the second
+        ratio stays near 1.
+        """
+        _, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
+        worst = 0.0
+        for axis, lengths, spacing in zip(
+            (0, 1), self.edge_lengths, np.ix_(np.diff(self.r), np.diff(self.t)), strict=True
+        ):
+            dh = np.diff(h, axis=axis)
+            ends = [np.take(d, np.arange(h.shape[axis] - 1) + k, axis=axis) for d in (dc_du, dc_dv) for k in (0, 1)]
+            start = np.linalg.norm(ends[0] * dh[..., :1] + ends[2] * dh[..., 1:], axis=-1)
+            end = np.linalg.norm(ends[1] * dh[..., :1] + ends[3] * dh[..., 1:], axis=-1)
+            on_surfaces = 0.5 * (start + end) / lengths
+            in_square = np.linalg.norm(dh, axis=-1) / spacing
+            worst = max(worst, float(np.minimum(on_surfaces, in_square).max()))
+        return worst
+
+    def within_stretch(self, h: np.ndarray, max_stretch: float) -> bool:
+        """Whether :meth:`stretch` is at most ``max_stretch`` (True without computing it when that is infinite)."""
+        return max_stretch == np.inf or self.stretch(h) <= max_stretch
+
+    def admissible(self, h: np.ndarray, max_stretch: float) -> bool:
+        """A valid reparametrization (:func:`meshreg.diffeo.is_valid`) within the stretch bound (:meth:`stretch`)."""
+        return is_valid(h) and self.within_stretch(h, max_stretch)
 
     def residual(self, rotation: np.ndarray, h: np.ndarray) -> Residual:
         """The coordinate residual of (R, h): RMS of R c1 - c2 o h and of R c1 + c2 o h (:mod:`meshreg.residual`)."""

@@ -62,6 +62,10 @@ class StepParams:
         Initial Levenberg-Marquardt damping of the Gauss-Newton solver. Default 1e-3.
     cg_iterations : int
         Most conjugate-gradient iterations of a Gauss-Newton step in a local basis. Default 100.
+    max_stretch : float
+        Modes "auto" and "dp+gd": no descent step may stretch an edge of the first grid by more than this factor
+        both in the square and on the surfaces (:meth:`meshreg.objective.Objective.stretch`). Default 10
+        (docs/method.md, "Stretch bound").
     """
 
     basis: int = 5
@@ -74,6 +78,7 @@ class StepParams:
     max_backtracks: int = 30
     damping: float = 1e-3
     cg_iterations: int = 100
+    max_stretch: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -92,7 +97,8 @@ class Advanced:
     start_margin : float
         Mode "auto": starts whose coarse DP energy is within this fraction of the best one are registered in
         full (at most ``Options.max_starts``). Default 0.5.
-    max_iterations, rel_tol, abs_tol, grad_tol, zero_energy, step_fraction, max_backtracks, damping, cg_iterations
+    max_iterations, rel_tol, abs_tol, grad_tol, zero_energy, step_fraction, max_backtracks, damping, cg_iterations,
+    max_stretch
         Numerics of each descent round: see :class:`StepParams`. ``abs_tol`` defaults to 1e-9 because E itself
         is only accurate to about 1e-9 on 101 x 101 grids (the exact h of the paper's same-shape pairs gives
         E = 4e-10 to 2e-9).
@@ -141,6 +147,7 @@ class Advanced:
     max_backtracks: int = StepParams.max_backtracks
     damping: float = StepParams.damping
     cg_iterations: int = StepParams.cg_iterations
+    max_stretch: float = StepParams.max_stretch
     refine_iterations: int = 10
     fine_iterations: int = 5
     refine_rel_tol: float = 1e-2
@@ -174,6 +181,7 @@ class Advanced:
         _number("step_fraction", self.step_fraction, 0.0, 1.0, low_open=True)
         _number("choice_window", self.choice_window, 0.0, 1.0, low_open=True)
         _number("refine_triangles", self.refine_triangles, 0.0, math.inf)
+        _number("max_stretch", self.max_stretch, 1.0, math.inf)
 
     def steps(self, basis: int, **changes) -> StepParams:
         """The :class:`StepParams` of a descent round in the basis KL = ``basis`` (``changes`` override fields)."""

@@ -258,7 +258,9 @@ def _dp_then_descent(
     with log.clock("dp"):
         rotation, h, _ = dp_stage(drive.work, options, both=both, rotation=rotation)
         log.step("dp", 0, energy_dp := drive.full_energy(rotation, h))
-    rotation, h = drive.descend(rotation, valid_start(drive.work, h), [options.basis], log)
+    rotation, h = drive.descend(
+        rotation, valid_start(drive.work, h, options.advanced.max_stretch), [options.basis], log
+    )
     energy, measured = drive.work.evaluate(rotation, h)
     return Candidate(objective, rotation, h, energy, log, energy_dp=energy_dp, pending=drive, measured=measured)
 

@@ -22,7 +22,7 @@ from functools import partial
 import numpy as np
 
 from .descent import descend, gauss_newton
-from .diffeo import compose, enforce_boundary, is_valid, jacobian_determinant
+from .diffeo import compose, enforce_boundary, jacobian_determinant
 from .dp import dp_surface_min
 from .fields import bspline_basis, node_basis, riseth_basis
 from .grid import GridSurface
@@ -123,15 +123,18 @@ class Candidate:
         return self
 
 
-def valid_start(objective: Objective, h: np.ndarray) -> np.ndarray:
-    """h itself when every cell keeps det J >= START_MIN_DET, else the least blend (1 - eps) h + eps id that does.
+def valid_start(objective: Objective, h: np.ndarray, max_stretch: float = np.inf) -> np.ndarray:
+    """h itself when every cell keeps det J >= START_MIN_DET and no cell edge is lengthened by more than
+    ``max_stretch``, else the least blend (1 - eps) h + eps id that does.
 
     The descent needs an orientation-preserving start: a DP path that is flat in places (gamma' = 0) gives
-    cells of zero area, where no step can be accepted.
+    cells of zero area, where no step can be accepted; and a start beyond the stretch bound of the descent
+    (:meth:`~meshreg.objective.Objective.stretch`) where no step is accepted either.
     """
+    r, t = objective.r, objective.t
     for eps in START_BLENDS:
         blended = (1.0 - eps) * h + eps * objective.identity
-        if is_valid(blended) and jacobian_determinant(blended, objective.r, objective.t).min() >= START_MIN_DET:
+        if objective.admissible(blended, max_stretch) and jacobian_determinant(blended, r, t).min() >= START_MIN_DET:
             return blended
     return objective.identity.copy()
 
@@ -146,7 +149,8 @@ def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
     if both:
         for p in range(2 * rounds):
             new_rotation, new_h, new_energy = _dp_along(objective, rotation, h, options.window, rounds, p % 2 == 0)
-            if not is_valid(new_h):  # composing the two directions' steps can collapse cells: keep the last valid h
+            # composing the two directions' steps can collapse cells, or stretch them beyond the descent's bound
+            if not objective.admissible(new_h, options.advanced.max_stretch):
                 break
             if new_energy >= energy * (1 - DP_ROUND_TOL):
                 if new_energy < energy:
@@ -173,13 +177,13 @@ def _dp_along(objective: Objective, rotation, h, window: int, dp_rounds: int, al
     return result.rotation, h, objective.energy(result.rotation, h)
 
 
-def carry(h: np.ndarray | None, source: Objective | None, target: Objective) -> np.ndarray:
+def carry(h: np.ndarray | None, source: Objective | None, target: Objective, max_stretch: float = np.inf) -> np.ndarray:
     """A descent start on ``target``: h from ``source``'s grid upsampled (bicubic, sides exact) and made a
-    valid start, or the identity when there is no h yet."""
+    valid start (:func:`valid_start`), or the identity when there is no h yet."""
     if h is None:
         return target.identity.copy()
     value = GridInterpolator(h, source.r, source.t).values(target.identity[..., 0], target.identity[..., 1])
-    return valid_start(target, enforce_boundary(value))
+    return valid_start(target, enforce_boundary(value), max_stretch)
 
 
 def alternate(objective: Objective, rotation, h, solve, steps: StepParams, rounds: tuple, log: Log, stage: str):
@@ -228,6 +232,8 @@ class Descent:
         self.work, self.nodes = work, nodes
         self.solver = descend if options.solver == "gradient" else gauss_newton
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
+        # mode "gd" descends from the identity, not from a DP path: no stretch bound (docs/method.md, "Stretch bound")
+        self.max_stretch = np.inf if options.mode == "gd" else options.advanced.max_stretch
 
     def full_energy(self, rotation, h: np.ndarray) -> float:
         """E on the full grid of R and h given at the work grid's nodes (h carried up when the grids differ)."""
@@ -247,7 +253,8 @@ class Descent:
         """Descend on ``target`` in the Riseth bases with KL in ``bases``, one after the other."""
         for kl in bases:
             solve = partial(self.solver, basis=riseth_basis(kl, target.r, target.t))
-            rotation, h = alternate(target, rotation, h, solve, self.options.steps(), self.rounds, log, "gd")
+            steps = self.options.steps(max_stretch=self.max_stretch)
+            rotation, h = alternate(target, rotation, h, solve, steps, self.rounds, log, "gd")
         return rotation, h
 
     def descend(self, rotation, h, bases, log: Log):
@@ -286,7 +293,7 @@ class Descent:
 
     def _enter(self, h, source: Objective, target: Objective, rotation, log: Log) -> np.ndarray:
         """:func:`carry` to another level; E on the full grid is kept on arrival there."""
-        h = carry(h, source, target)
+        h = carry(h, source, target, self.max_stretch)
         if target is self.objective:
             log.keep("full grid", self.objective.energy(rotation, h))
         return h
@@ -295,7 +302,11 @@ class Descent:
         """One refinement level: Gauss-Newton in ``fields`` on ``target``, alternated with Kabsch."""
         advanced = self.options.advanced
         cap = advanced.refine_iterations if target is self.work else advanced.fine_iterations
-        steps = self.options.steps(max_iterations=min(advanced.max_iterations, cap), rel_tol=advanced.refine_rel_tol)
+        steps = self.options.steps(
+            max_iterations=min(advanced.max_iterations, cap),
+            rel_tol=advanced.refine_rel_tol,
+            max_stretch=self.max_stretch,
+        )
         solve = partial(gauss_newton, basis=fields, additive=additive)
         return alternate(target, rotation, h, solve, steps, self.rounds, log, "refine")
 
@@ -309,7 +320,7 @@ class Descent:
                 for sigma in path["smoothing"]:
                     n = level_nodes(sigma, COARSE_NODES)
                     level = Objective(smoothed(first, sigma, n), smoothed(second, sigma, n))
-                    h = carry(h, previous, level)
+                    h = carry(h, previous, level, self.max_stretch)
                     rotation, h = self._bases(level, rotation, h, path["bases"], log.scratch("smoothing"))
                     previous = level
         h = self._enter(h, previous, self.work, rotation, log) if previous is not None else carry(None, None, self.work)

@@ -72,3 +72,24 @@ def test_grid_finer_than_the_work_grid_finds_the_true_answer(mode):
     assert angle_between(result.rotation, pair.rotation) < 0.01
     h_true = pair.h_true(result.h[..., 0] * 0 + result.r[:, None], result.h[..., 1] * 0 + result.t[None, :])
     assert np.abs(result.h - h_true).max() < 1e-2
+
+
+def test_energy_of_different_shapes_holds_on_a_finer_sampling():
+    """Mode auto on a 61 x 61 sampling of sine2-3 g1: the E it reports is within 15% of the E of its answer (R, and h
+    upsampled bicubically) on a 4x finer sampling of the same surfaces. Without the stretch bound the node level
+    squeezed folds of the second surface into single cells, whose chords drop the folds' area and mismatch out of
+    E: E = 0.08 on the grid against 0.46 on the finer sampling."""
+    from meshreg.diffeo import enforce_boundary
+    from meshreg.objective import Objective
+    from meshreg.search import apply_symmetry, inverse_symmetry, symmetry_map
+    from meshreg.spline import GridInterpolator
+
+    coarse, fine = (next(p for p in paper_pairs(n, n) if p.name == "sine2-3 g1") for n in (61, 241))
+    result = meshreg.register(coarse.first, coarse.second)
+    objective = Objective(fine.first, apply_symmetry(fine.second, result.symmetry))
+    nodes = objective.identity
+    h = GridInterpolator(result.h, result.r, result.t)(nodes[..., 0], nodes[..., 1])[0]
+    fine_energy = objective.energy(
+        result.rotation, enforce_boundary(symmetry_map(inverse_symmetry(result.symmetry), h))
+    )
+    assert abs(result.energy - fine_energy) <= 0.15 * fine_energy
