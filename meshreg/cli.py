@@ -63,9 +63,9 @@ def _registering(quiet: bool):
 def _kernels_cached() -> bool:
     """Whether numba has cached the compiled kernels of every module that has them (else the first run compiles)."""
     package = Path(__file__).parent
-    modules = ("spline", "dp", "srnf", "cell_jacobian", "normal_system")
-    modules += ("mesh/resample", "mesh/locate", "mesh/align", "mesh/surface")
-    return all(any((package / m).parent.glob(f"__pycache__/{Path(m).name}.*.nbi")) for m in modules)
+    files = [*package.glob("*.py"), *package.glob("mesh/*.py")]
+    modules = [f for f in files if f.name != "cli.py" and "@numba.njit(cache=True" in f.read_text()]
+    return all(any(f.parent.glob(f"__pycache__/{f.stem}.*.nbi")) for f in modules)
 
 
 def cmd_register(args) -> int:
