@@ -165,6 +165,7 @@ def gauss_newton(
     basis: TensorBasis | None = None,
     callback: Callable[[int, float], None] | None = None,
     additive: bool = False,
+    stretch_masks: int = 0,
 ) -> DescentState:
     """Joint descent in h and R along Gauss-Newton directions (Levenberg-Marquardt).
 
@@ -177,7 +178,8 @@ def gauss_newton(
     det / Gale-Nikaido bound, and R <- exp([omega]x) R; lam grows while E does not drop or h stops
     being valid. With ``additive=True`` the update of h is h + v instead (no interpolation of h,
     so that local fields move single nodes exactly), shortened when it folds h
-    (:data:`FOLD_FRACTION`). Other arguments as for :func:`descend`.
+    (:data:`FOLD_FRACTION`), and, with ``stretch_masks`` > 0, dropped at the nodes of the edges it stretches beyond
+    the bound (:func:`_held`). Other arguments as for :func:`descend`.
 
     Returns
     -------
@@ -209,8 +211,10 @@ def gauss_newton(
         accepted = None
         for _ in range(params.max_backtracks):
             step = _solve(normal, lam * scale, rhs, params.cg_iterations)
+            within = None  # whether the candidate keeps the stretch bound, when already known
             if additive:
                 candidate = _unfolded(state.h, (fields @ step[:-3]).reshape(state.h.shape))
+                candidate, within = _held(objective, state.h, candidate, params.max_stretch, stretch_masks)
             else:
                 field_, jac_v = basis.synthesize(step[:-3])
                 delta = min(1.0, params.step_fraction * max_step(-jac_v))
@@ -220,7 +224,7 @@ def gauss_newton(
                 new_rotation = Rotation.from_rotvec(step[-3:]).as_matrix() @ state.rotation
                 e = objective.energy(new_rotation, candidate)
                 if e < state.energy:
-                    if objective.within_stretch(candidate, params.max_stretch):
+                    if objective.within_stretch(candidate, params.max_stretch) if within is None else within:
                         accepted = (candidate, new_rotation, e)
                     break  # E drops only by stretching beyond the bound: the round ends (no damping finds more)
             lam = max(lam, 1e-6) * 4.0
@@ -237,6 +241,30 @@ def _unfolded(h: np.ndarray, field_: np.ndarray) -> np.ndarray:
         return candidate
     step = FOLD_FRACTION * largest_step(h, field_)
     return enforce_boundary(h + step * field_) if step < 1.0 else candidate
+
+
+def _held(objective: Objective, h: np.ndarray, candidate: np.ndarray, max_stretch: float, masks: int):
+    """``candidate`` (h moved node by node) with the move dropped at both nodes of every edge that it stretches
+    beyond ``max_stretch`` (:meth:`~meshreg.objective.Objective.edge_stretch`), ``masks`` times at most (dropping
+    moves changes the stretch of the neighbouring edges): the rest of the grid still moves when a few edges would
+    stretch too far, instead of the whole step being refused.
+
+    Returns the candidate and whether it keeps the bound (None, without looking, when ``masks`` is 0).
+    """
+    if masks == 0 or not np.isfinite(max_stretch):
+        return candidate, None
+    moving = np.ones(h.shape[:2], dtype=bool)
+    for dropped in range(masks + 1):
+        along_r, along_t = (s > max_stretch for s in objective.edge_stretch(candidate))
+        if not (along_r.any() or along_t.any()):
+            return candidate, True
+        if dropped == masks:
+            return candidate, False
+        moving[:-1] &= ~along_r
+        moving[1:] &= ~along_r
+        moving[:, :-1] &= ~along_t
+        moving[:, 1:] &= ~along_t
+        candidate = np.where(moving[..., None], candidate, h)
 
 
 def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, selection=None):

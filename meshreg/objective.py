@@ -95,8 +95,12 @@ class Objective:
         the first, both are large; for two samplings of one shape the exact h may have steep slopes, but the second
         ratio stays near 1.
         """
+        return max(float(s.max()) for s in self.edge_stretch(h))
+
+    def edge_stretch(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The factor of :meth:`stretch` for every edge: along r (M-1, N) and along t (M, N-1)."""
         _, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
-        worst = 0.0
+        out = []
         for axis, lengths, spacing in zip(
             (0, 1), self.edge_lengths, np.ix_(np.diff(self.r), np.diff(self.t)), strict=True
         ):
@@ -106,8 +110,8 @@ class Objective:
             end = np.linalg.norm(ends[1] * dh[..., :1] + ends[3] * dh[..., 1:], axis=-1)
             on_surfaces = 0.5 * (start + end) / lengths
             in_square = np.linalg.norm(dh, axis=-1) / spacing
-            worst = max(worst, float(np.minimum(on_surfaces, in_square).max()))
-        return worst
+            out.append(np.minimum(on_surfaces, in_square))
+        return out[0], out[1]
 
     def within_stretch(self, h: np.ndarray, max_stretch: float) -> bool:
         """Whether :meth:`stretch` is at most ``max_stretch`` (True without computing it when that is infinite)."""

@@ -106,8 +106,19 @@ class Advanced:
         Most iterations per round of each refinement level (cubic B-spline bases of 12 and 24 functions per axis,
         and the node basis). Default 10.
     fine_iterations : int
-        On grids above 101 nodes per axis, most node-refinement iterations on the full grid after the descent
-        on the coarse one. Default 5.
+        On grids above 101 nodes per axis, most node-refinement iterations per round on the full grid, after the
+        whole schedule on the coarse work grid (its node level included). Default 5.
+    fine_rel_tol : float
+        ``rel_tol`` of that node level on the full grid: its rounds stop at the first Gauss-Newton step that lowers
+        E by less than this fraction. Default 0.05: at 401 x 401 one step costs about as much as the whole 101 x 101
+        schedule, and on the paper's sine 2-3 pair the second step gained 0.8%; same-shape pairs, whose E falls by
+        orders of magnitude per step, are not affected.
+    fine_cg_iterations : int
+        Most conjugate-gradient iterations of a Gauss-Newton step of that node level (``cg_iterations`` elsewhere).
+        Default 30: the start carried from the coarse grid is already close, so the step is a local correction.
+    fine_stretch_masks : int
+        That node level: a step that stretches some edges beyond the bound is not refused whole; the move is
+        dropped at those edges' nodes, up to this many times (:func:`meshreg.descent.gauss_newton`). Default 3.
     refine_rel_tol : float
         ``rel_tol`` of the refinement levels. Default 1e-2: on the paper's different-shape pairs the levels
         otherwise spend two thirds of their time on 0.2% steps; same-shape pairs, whose E falls by orders of
@@ -150,6 +161,9 @@ class Advanced:
     max_stretch: float = StepParams.max_stretch
     refine_iterations: int = 10
     fine_iterations: int = 5
+    fine_rel_tol: float = 0.05
+    fine_cg_iterations: int = 30
+    fine_stretch_masks: int = 3
     refine_rel_tol: float = 1e-2
     choice_window: float = 0.1
     refine_triangles: float = 6.0
@@ -164,8 +178,10 @@ class Advanced:
             "cg_iterations",
             "refine_iterations",
             "fine_iterations",
+            "fine_cg_iterations",
         ):
             _integer(name, getattr(self, name), 1, 1_000_000)
+        _integer("fine_stretch_masks", self.fine_stretch_masks, 0, 1_000_000)
         for name in (
             "round_tol",
             "rel_tol",
@@ -173,6 +189,7 @@ class Advanced:
             "grad_tol",
             "zero_energy",
             "refine_rel_tol",
+            "fine_rel_tol",
             "damping",
             "start_margin",
             "ambiguity",

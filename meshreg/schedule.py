@@ -276,38 +276,51 @@ class Descent:
                 for k in REFINE_KNOTS
                 if k < min(work.first.shape) // 2 and 1.0 / (k - 3) >= self.finest
             ]
-            if min(np.diff(objective.r).max(), np.diff(objective.t).max()) >= self.finest:
-                levels.append((objective, None, True))
-        source = work
+            for target in dict.fromkeys((work, objective)):  # the node level of the work grid, then the full one's
+                if min(np.diff(target.r).max(), np.diff(target.t).max()) >= self.finest:
+                    levels.append((target, None, True))
+        source, bound = work, self.max_stretch
         for target, fields, additive in levels:
             if target is not source:
-                h = self._enter(h, source, target, rotation, log)
+                h, bound = self._enter(h, source, target, rotation, log)
             fields = node_basis(target.r, target.t) if fields is None else fields
-            rotation, h = self._refine(target, fields, additive, rotation, h, self._log(target, log))
+            rotation, h = self._refine(target, fields, additive, rotation, h, self._log(target, log), bound)
             source = target
         if source is not objective:
-            h = self._enter(h, source, objective, rotation, log)
+            h, _ = self._enter(h, source, objective, rotation, log)
         if refine:
             log.timings["refine"] = log.timings.get("refine", 0.0) + time.perf_counter() - tic
         return rotation, h
 
-    def _enter(self, h, source: Objective, target: Objective, rotation, log: Log) -> np.ndarray:
-        """:func:`carry` to another level; E on the full grid is kept on arrival there."""
-        h = carry(h, source, target, self.max_stretch)
+    def _enter(self, h, source: Objective, target: Objective, rotation, log: Log) -> tuple[np.ndarray, float]:
+        """:func:`carry` to another level, and the stretch bound there; E on the full grid is kept on arrival.
+
+        The bound is ``max_stretch`` or the stretch of the carried h, whichever is larger: the bicubic upsampling
+        of an h within the bound on the coarser grid can exceed it by a few percent on the finer grid's shorter
+        edges (its derivative peaks between the coarse nodes), and a start beyond the bound would have to be
+        blended toward the identity, losing the coarse answer. So the level starts from the coarse answer itself
+        and no step stretches beyond what it already does.
+        """
+        h = carry(h, source, target)
+        bound = max(self.max_stretch, target.stretch(h)) if np.isfinite(self.max_stretch) else self.max_stretch
         if target is self.objective:
             log.keep("full grid", self.objective.energy(rotation, h))
-        return h
+        return h, bound
 
-    def _refine(self, target: Objective, fields, additive: bool, rotation, h, log: Log):
-        """One refinement level: Gauss-Newton in ``fields`` on ``target``, alternated with Kabsch."""
-        advanced = self.options.advanced
-        cap = advanced.refine_iterations if target is self.work else advanced.fine_iterations
+    def _refine(self, target: Objective, fields, additive: bool, rotation, h, log: Log, max_stretch: float):
+        """One refinement level: Gauss-Newton in ``fields`` on ``target`` within the stretch bound ``max_stretch``,
+        alternated with Kabsch. The node level of a full grid finer than the work grid has its own iteration
+        cap, tolerance, CG iterations and stretch masks (``Advanced.fine_*``)."""
+        advanced, fine = self.options.advanced, target is not self.work
+        cap = advanced.fine_iterations if fine else advanced.refine_iterations
         steps = self.options.steps(
             max_iterations=min(advanced.max_iterations, cap),
-            rel_tol=advanced.refine_rel_tol,
-            max_stretch=self.max_stretch,
+            rel_tol=advanced.fine_rel_tol if fine else advanced.refine_rel_tol,
+            cg_iterations=advanced.fine_cg_iterations if fine else advanced.cg_iterations,
+            max_stretch=max_stretch,
         )
-        solve = partial(gauss_newton, basis=fields, additive=additive)
+        masks = advanced.fine_stretch_masks if fine and additive else 0
+        solve = partial(gauss_newton, basis=fields, additive=additive, stretch_masks=masks)
         return alternate(target, rotation, h, solve, steps, self.rounds, log, "refine")
 
     def from_identity(self, first: GridSurface, second: GridSurface, path: dict, log: Log):
@@ -323,7 +336,7 @@ class Descent:
                     h = carry(h, previous, level, self.max_stretch)
                     rotation, h = self._bases(level, rotation, h, path["bases"], log.scratch("smoothing"))
                     previous = level
-        h = self._enter(h, previous, self.work, rotation, log) if previous is not None else carry(None, None, self.work)
+        h = carry(None, None, self.work) if previous is None else self._enter(h, previous, self.work, rotation, log)[0]
         rotation, h = self.descend(rotation, h, path["bases"], log)
         return self.polish(rotation, h, log)
 
