@@ -245,7 +245,7 @@ def _unfolded(h: np.ndarray, field_: np.ndarray) -> np.ndarray:
 
 def _held(objective: Objective, h: np.ndarray, candidate: np.ndarray, max_stretch: float, masks: int):
     """``candidate`` (h moved node by node) with the move dropped at both nodes of every edge that it stretches
-    beyond ``max_stretch`` (:meth:`~meshreg.objective.Objective.edge_stretch`), ``masks`` times at most (dropping
+    beyond ``max_stretch`` (:meth:`~meshreg.objective.Objective.over_stretch`), ``masks`` times at most (dropping
     moves changes the stretch of the neighbouring edges): the rest of the grid still moves when a few edges would
     stretch too far, instead of the whole step being refused.
 
@@ -255,7 +255,7 @@ def _held(objective: Objective, h: np.ndarray, candidate: np.ndarray, max_stretc
         return candidate, None
     moving = np.ones(h.shape[:2], dtype=bool)
     for dropped in range(masks + 1):
-        along_r, along_t = (s > max_stretch for s in objective.edge_stretch(candidate))
+        along_r, along_t = objective.over_stretch(candidate, max_stretch)
         if not (along_r.any() or along_t.any()):
             return candidate, True
         if dropped == masks:
