@@ -302,7 +302,7 @@ class Descent:
         and no step stretches beyond what it already does.
         """
         h = carry(h, source, target)
-        bound = max(self.max_stretch, target.stretch(h)) if np.isfinite(self.max_stretch) else self.max_stretch
+        bound = self.max_stretch if target.within_stretch(h, self.max_stretch) else target.stretch(h)
         if target is self.objective:
             log.keep("full grid", self.objective.energy(rotation, h))
         return h, bound
