@@ -45,7 +45,7 @@ def energy_on(result, pair) -> float:
 def carried_area(result, pair) -> float:
     """sum w |(q2, h)|^2 on ``pair``'s grids: the share of the second surface's area (1) that (q2, h) carries."""
     objective, h = measured(result, pair)
-    return float(np.sum(objective.weights[..., None] * objective.q2(h) ** 2))
+    return objective.carried_area(h)
 
 
 def paper_pair(name: str, size: int):

@@ -166,6 +166,7 @@ def gauss_newton(
     callback: Callable[[int, float], None] | None = None,
     additive: bool = False,
     stretch_masks: int = 0,
+    charge_area: bool = False,
 ) -> DescentState:
     """Joint descent in h and R along Gauss-Newton directions (Levenberg-Marquardt).
 
@@ -179,7 +180,10 @@ def gauss_newton(
     being valid. With ``additive=True`` the update of h is h + v instead (no interpolation of h,
     so that local fields move single nodes exactly), shortened when it folds h
     (:data:`FOLD_FRACTION`), and, with ``stretch_masks`` > 0, dropped at the nodes of the edges it stretches beyond
-    the bound (:func:`_held`). Other arguments as for :func:`descend`.
+    the bound (:func:`_held`). With ``charge_area``, a step must also lower E with the carried area's loss charged
+    back, E + (1 - A) = 2 - 2 <R q1, (q2, h)> (:meth:`~meshreg.objective.Objective.carried_area`): one that lowers
+    E only by hiding area ends the round, as one beyond the stretch bound does. Other arguments as for
+    :func:`descend`.
 
     Returns
     -------
@@ -192,6 +196,7 @@ def gauss_newton(
     ident = objective.identity
     state = DescentState(h.copy(), objective.energy(rotation, h), rotation=rotation.copy())
     state.history.append(state.energy)
+    area = objective.carried_area(h) if charge_area else 0.0  # A of state.h, or 0 when A is not charged
     lam = params.damping
     for _ in range(params.max_iterations):
         if state.energy <= params.zero_energy:
@@ -224,8 +229,11 @@ def gauss_newton(
                 new_rotation = Rotation.from_rotvec(step[-3:]).as_matrix() @ state.rotation
                 e = objective.energy(new_rotation, candidate)
                 if e < state.energy:
-                    if objective.within_stretch(candidate, params.max_stretch) if within is None else within:
-                        accepted = (candidate, new_rotation, e)
+                    new_area = objective.carried_area(candidate) if charge_area else 0.0
+                    if (objective.within_stretch(candidate, params.max_stretch) if within is None else within) and (
+                        e - new_area < state.energy - area
+                    ):
+                        accepted, area = (candidate, new_rotation, e), new_area
                     break  # E drops only by stretching beyond the bound: the round ends (no damping finds more)
             lam = max(lam, 1e-6) * 4.0
         if accepted is None or _accept(state, *accepted, params, callback):

@@ -87,6 +87,15 @@ class Objective:
         """E(h, R)."""
         return energy(self.q1, self.q2(h), self.weights, rotation)
 
+    def carried_area(self, h: np.ndarray) -> float:
+        """sum w |(q2, h)|^2: the area of the second surface that (q2, h) carries (1 in the continuum for every h).
+
+        (q2, h) is computed from the chord quadrilaterals c2(h(corners)) of the cells; where h stretches a cell over a
+        fold of the second surface, its chord is flatter and smaller than the surface it spans, and the fold's area
+        and mismatch drop out of E. A lower carried area is that, not a better match.
+        """
+        return float(np.sum(self.weights[..., None] * self.q2(h) ** 2))
+
     @cached_property
     def node_weights(self) -> np.ndarray:
         """Area weights (M, N) of the first surface's nodes, summing to 1 (:func:`meshreg.residual.node_weights`)."""
