@@ -166,7 +166,7 @@ def gauss_newton(
     callback: Callable[[int, float], None] | None = None,
     additive: bool = False,
     stretch_masks: int = 0,
-    charge_area: bool = False,
+    area_charge: float = 0.0,
 ) -> DescentState:
     """Joint descent in h and R along Gauss-Newton directions (Levenberg-Marquardt).
 
@@ -180,10 +180,10 @@ def gauss_newton(
     being valid. With ``additive=True`` the update of h is h + v instead (no interpolation of h,
     so that local fields move single nodes exactly), shortened when it folds h
     (:data:`FOLD_FRACTION`), and, with ``stretch_masks`` > 0, dropped at the nodes of the edges it stretches beyond
-    the bound (:func:`_held`). With ``charge_area``, a step must also lower E with the carried area's loss charged
-    back, E + (1 - A) = 2 - 2 <R q1, (q2, h)> (:meth:`~meshreg.objective.Objective.carried_area`): one that lowers
-    E only by hiding area ends the round, as one beyond the stretch bound does. Other arguments as for
-    :func:`descend`.
+    the bound (:func:`_held`). With ``area_charge`` = k > 0, a step must also lower E + k (1 - A), E charged k
+    times the share of the second surface's area that the chords of its cells lose
+    (:meth:`~meshreg.objective.Objective.carried_area`): one that lowers E mostly by hiding area ends the round,
+    as one beyond the stretch bound does. Other arguments as for :func:`descend`.
 
     Returns
     -------
@@ -196,7 +196,7 @@ def gauss_newton(
     ident = objective.identity
     state = DescentState(h.copy(), objective.energy(rotation, h), rotation=rotation.copy())
     state.history.append(state.energy)
-    area = objective.carried_area(h) if charge_area else 0.0  # A of state.h, or 0 when A is not charged
+    area = area_charge * objective.carried_area(h) if area_charge else 0.0  # k A of state.h
     lam = params.damping
     for _ in range(params.max_iterations):
         if state.energy <= params.zero_energy:
@@ -229,7 +229,7 @@ def gauss_newton(
                 new_rotation = Rotation.from_rotvec(step[-3:]).as_matrix() @ state.rotation
                 e = objective.energy(new_rotation, candidate)
                 if e < state.energy:
-                    new_area = objective.carried_area(candidate) if charge_area else 0.0
+                    new_area = area_charge * objective.carried_area(candidate) if area_charge else 0.0
                     if (objective.within_stretch(candidate, params.max_stretch) if within is None else within) and (
                         e - new_area < state.energy - area
                     ):

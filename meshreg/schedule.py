@@ -311,11 +311,9 @@ class Descent:
         """One refinement level: Gauss-Newton in ``fields`` on ``target`` within the stretch bound ``max_stretch``,
         alternated with Kabsch.
 
-        The node level of a full grid finer than the work grid has its own iteration cap, tolerance, CG iterations
-        and stretch masks (``Advanced.fine_*``), and its steps are charged for the area they hide
-        (``charge_area`` of :func:`~meshreg.descent.gauss_newton`): the stretch bound alone let one step on 201 x 201
-        lower E there from 0.514 to 0.495 on sine2-4 g1 by dropping 2.6% of the second surface's area out of the
-        chords, which made the answer worse on 401 x 401 (0.553 against 0.520).
+        The node level of a full grid finer than the work grid has its own iteration cap, tolerance (of its steps
+        and of the Kabsch step that starts another round), CG iterations and stretch masks, and its steps are
+        charged for the area they hide (``Advanced.fine_*``).
         """
         advanced, fine = self.options.advanced, target is not self.work
         cap = advanced.fine_iterations if fine else advanced.refine_iterations
@@ -326,8 +324,10 @@ class Descent:
             max_stretch=max_stretch,
         )
         masks = advanced.fine_stretch_masks if fine and additive else 0
-        solve = partial(gauss_newton, basis=fields, additive=additive, stretch_masks=masks, charge_area=fine)
-        return alternate(target, rotation, h, solve, steps, self.rounds, log, "refine")
+        charge = advanced.fine_area_charge if fine else 0.0
+        solve = partial(gauss_newton, basis=fields, additive=additive, stretch_masks=masks, area_charge=charge)
+        rounds = (self.rounds[0], advanced.fine_rel_tol) if fine else self.rounds
+        return alternate(target, rotation, h, solve, steps, rounds, log, "refine")
 
     def from_identity(self, first: GridSurface, second: GridSurface, path: dict, log: Log):
         """Mode "gd": one descent path from R = I and h = id, through the smoothed pairs ``path["smoothing"]``,
