@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from functools import cached_property
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -110,25 +111,50 @@ def _boundary_uv(disk: DiskMesh, corner_pos: np.ndarray) -> np.ndarray:
     return uv
 
 
-def _weights(v, f, kind):
-    rows, cols, vals = [], [], []
-    for k in range(3):
-        i, j, l = f[:, k], f[:, (k + 1) % 3], f[:, (k + 2) % 3]
-        eij, eil = v[j] - v[i], v[l] - v[i]
-        if kind == "mean-value":
-            nij, nil = np.linalg.norm(eij, axis=1), np.linalg.norm(eil, axis=1)
-            angle = np.arccos(np.clip(np.sum(eij * eil, 1) / (nij * nil), -1, 1))
-            t = np.tan(angle / 2)
-            rows += [i, i]
-            cols += [j, l]
-            vals += [t / nij, t / nil]  # noqa: E702
-        else:  # cotangent of the angle at i weights the opposite edge (j, l)
-            cot = np.sum(eij * eil, 1) / np.maximum(np.linalg.norm(np.cross(eij, eil), axis=1), 1e-300)
-            rows += [j, l]
-            cols += [l, j]
-            vals += [0.5 * cot, 0.5 * cot]  # noqa: E702
-    n = len(v)
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+@numba.njit(cache=True)
+def _weight_triplets(v: np.ndarray, f: np.ndarray, cotangent: bool):
+    """Rows, columns and values (6m,) of the edge weights: mean-value weights tan(angle at i / 2) / |e_ij| of the
+    edges (i, j) and (i, l) at each corner i, or half the cotangent of the angle at i on the opposite edge (j, l)
+    both ways; duplicates add up."""
+    m = f.shape[0]
+    rows, cols, vals = np.empty(6 * m, np.int64), np.empty(6 * m, np.int64), np.empty(6 * m)
+    for t in range(m):
+        for k in range(3):
+            i, j, l = f[t, k], f[t, (k + 1) % 3], f[t, (k + 2) % 3]
+            x1, y1, z1 = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
+            x2, y2, z2 = v[l, 0] - v[i, 0], v[l, 1] - v[i, 1], v[l, 2] - v[i, 2]
+            dot = x1 * x2 + y1 * y2 + z1 * z2
+            at = 6 * t + 2 * k
+            if cotangent:
+                cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+                half = 0.5 * dot / max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+                rows[at], cols[at], vals[at] = j, l, half
+                rows[at + 1], cols[at + 1], vals[at + 1] = l, j, half
+            else:
+                nij, nil = np.sqrt(x1 * x1 + y1 * y1 + z1 * z1), np.sqrt(x2 * x2 + y2 * y2 + z2 * z2)
+                tan = np.tan(np.arccos(min(max(dot / (nij * nil), -1.0), 1.0)) / 2)
+                rows[at], cols[at], vals[at] = i, j, tan / nij
+                rows[at + 1], cols[at + 1], vals[at + 1] = i, l, tan / nil
+    return rows, cols, vals
+
+
+def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tuple[sp.csc_matrix, sp.csc_matrix]:
+    """The rows of the mesh Laplacian L = diag(W 1) - W at the interior vertices, split into the interior block
+    (i, i) and the coupling to the boundary loop (i, b), both CSC, in the order of ``interior`` and of the loop."""
+    v, f, loop = disk.vertices, disk.faces, disk.boundary
+    rows, cols, vals = _weight_triplets(
+        np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(f, dtype=np.int64), weights == "cotangent"
+    )
+    ni = len(interior)
+    place = np.empty(len(v), dtype=np.int64)  # column of each vertex: the interior first, then the loop
+    place[interior] = np.arange(ni)
+    place[loop] = ni + np.arange(len(loop))
+    inside = place[rows] < ni
+    diagonal = np.bincount(rows, weights=vals, minlength=len(v))[interior]
+    ids = np.arange(ni)
+    at = (np.concatenate([ids, place[rows[inside]]]), np.concatenate([ids, place[cols[inside]]]))
+    lap = sp.csc_matrix((np.concatenate([diagonal, -vals[inside]]), at), shape=(ni, len(v)))
+    return lap[:, :ni], lap[:, ni:]
 
 
 def quarter_corners(disk: DiskMesh, start: float) -> np.ndarray:
@@ -189,17 +215,16 @@ class HarmonicMap:
             raise InputError("weights must be 'mean-value' or 'cotangent'")
         self.disk = disk
         self.weights = weights
-        self.interior = np.setdiff1d(np.arange(len(disk.vertices)), disk.boundary)
+        inside = np.ones(len(disk.vertices), dtype=bool)
+        inside[disk.boundary] = False
+        self.interior = np.flatnonzero(inside)
 
     @cached_property
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
         without interior vertices)."""
-        v, f, loop = self.disk.vertices, self.disk.faces, self.disk.boundary
-        w = _weights(v, f, self.weights)
-        lap = (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
-        coupling = lap[self.interior][:, loop]
-        return coupling, factorize(lap[self.interior][:, self.interior].tocsc()) if len(self.interior) else None
+        block, coupling = laplacian_blocks(self.disk, self.interior, self.weights)
+        return coupling, factorize(block) if len(self.interior) else None
 
     def __call__(self, corner_pos: np.ndarray):
         """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from
