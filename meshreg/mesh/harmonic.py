@@ -138,23 +138,62 @@ def _weight_triplets(v: np.ndarray, f: np.ndarray, cotangent: bool):
     return rows, cols, vals
 
 
-def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tuple[sp.csc_matrix, sp.csc_matrix]:
+@numba.njit(cache=True)
+def _assemble(rows, cols, vals, place, ni):
+    """CSR arrays (indptr, indices, data) of the interior block and of the coupling to the loop of the Laplacian
+    diag(W 1) - W, from W's triplets (duplicates add up) and each vertex's ``place``: its row and column among the
+    ``ni`` interior vertices, or ni + its loop position. O(n + nnz): triplets bucketed by row, merged by a marker."""
+    start = np.zeros(ni + 1, np.int64)
+    for k in range(len(rows)):
+        if place[rows[k]] < ni:
+            start[place[rows[k]] + 1] += 1
+    for r in range(ni):
+        start[r + 1] += start[r]
+    order, fill = np.empty(start[ni], np.int64), start[:-1].copy()
+    for k in range(len(rows)):
+        r = place[rows[k]]
+        if r < ni:
+            order[fill[r]] = k
+            fill[r] += 1
+    mark = np.full(len(place), -1, np.int64)
+    ptr = (np.zeros(ni + 1, np.int64), np.zeros(ni + 1, np.int64))
+    ind = (np.empty(start[ni] + ni, np.int64), np.empty(start[ni], np.int64))
+    val = (np.empty(start[ni] + ni), np.empty(start[ni]))
+    for r in range(ni):
+        size = (ptr[0][r] + 1, ptr[1][r])
+        ind[0][size[0] - 1], val[0][size[0] - 1], mark[r] = r, 0.0, size[0] - 1  # the diagonal first
+        total = 0.0
+        for p in range(start[r], start[r + 1]):
+            c, w = place[cols[order[p]]], vals[order[p]]
+            total += w
+            side = 0 if c < ni else 1
+            if mark[c] < 0:
+                mark[c] = size[side]
+                ind[side][size[side]], val[side][size[side]] = c - side * ni, 0.0
+                size = (size[0] + 1, size[1]) if side == 0 else (size[0], size[1] + 1)
+            val[side][mark[c]] -= w
+        val[0][ptr[0][r]] += total
+        ptr[0][r + 1], ptr[1][r + 1] = size
+        mark[r] = -1
+        for p in range(start[r], start[r + 1]):
+            mark[place[cols[order[p]]]] = -1
+    return ptr[0], ind[0][: ptr[0][ni]], val[0][: ptr[0][ni]], ptr[1], ind[1][: ptr[1][ni]], val[1][: ptr[1][ni]]
+
+
+def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tuple[sp.csc_matrix, sp.csr_matrix]:
     """The rows of the mesh Laplacian L = diag(W 1) - W at the interior vertices, split into the interior block
-    (i, i) and the coupling to the boundary loop (i, b), both CSC, in the order of ``interior`` and of the loop."""
+    (i, i), CSC, and the coupling to the boundary loop (i, b), CSR, in the order of ``interior`` and of the loop."""
     v, f, loop = disk.vertices, disk.faces, disk.boundary
     rows, cols, vals = _weight_triplets(
         np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(f, dtype=np.int64), weights == "cotangent"
     )
     ni = len(interior)
-    place = np.empty(len(v), dtype=np.int64)  # column of each vertex: the interior first, then the loop
+    place = np.empty(len(v), dtype=np.int64)  # row and column of each vertex: the interior first, then the loop
     place[interior] = np.arange(ni)
     place[loop] = ni + np.arange(len(loop))
-    inside = place[rows] < ni
-    diagonal = np.bincount(rows, weights=vals, minlength=len(v))[interior]
-    ids = np.arange(ni)
-    at = (np.concatenate([ids, place[rows[inside]]]), np.concatenate([ids, place[cols[inside]]]))
-    lap = sp.csc_matrix((np.concatenate([diagonal, -vals[inside]]), at), shape=(ni, len(v)))
-    return lap[:, :ni], lap[:, ni:]
+    bptr, bind, bval, cptr, cind, cval = _assemble(rows, cols, vals, place, ni)
+    block = sp.csr_matrix((bval, bind, bptr), shape=(ni, ni)).tocsc()
+    return block, sp.csr_matrix((cval, cind, cptr), shape=(ni, len(loop)))
 
 
 def quarter_corners(disk: DiskMesh, start: float) -> np.ndarray:
