@@ -13,10 +13,13 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def _edge_table(lo: np.ndarray, hi: np.ndarray, n: int):
+def _edge_table(directed: np.ndarray, n: int):
     """Undirected edge id of each directed edge (bucketed by its lower vertex: O(n + edges)), the first directed
     edge of each undirected edge, and how many directed edges use each."""
-    size = len(lo)
+    size = directed.shape[0]
+    lo, hi = np.empty(size, np.int64), np.empty(size, np.int64)
+    for k in range(size):
+        lo[k], hi[k] = min(directed[k, 0], directed[k, 1]), max(directed[k, 0], directed[k, 1])
     start = np.zeros(n + 1, np.int64)
     for k in range(size):
         start[lo[k] + 1] += 1
@@ -65,8 +68,7 @@ def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
         Directed edges (triangles) using each undirected edge: 1 on the boundary, 2 inside, more when non-manifold.
     """
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    lo, hi = np.minimum(directed[:, 0], directed[:, 1]), np.maximum(directed[:, 0], directed[:, 1])
-    inverse, first, counts = _edge_table(lo, hi, int(faces.max()) + 1 if len(faces) else 0)
+    inverse, first, counts = _edge_table(directed, int(faces.max()) + 1 if len(faces) else 0)
     return directed, first, inverse, counts
 
 

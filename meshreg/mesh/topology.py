@@ -171,7 +171,7 @@ def prepare_disk(
         edges = _edges(f)
         report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
     if cleanup:
-        f = _without_ears(v, f, report, edges)
+        f, edges = _unchanged_or_new(_without_ears(v, f, report, edges), f, edges)
     used = _used_vertices(f, len(v))
     original = used[used < n]
     if len(original) < n:
@@ -179,7 +179,8 @@ def prepare_disk(
     remap = np.full(len(v), -1)
     remap[used] = np.arange(len(used))
     v, f = v[used], remap[f]
-    return DiskMesh(v, f, np.array(_single_loop(v, f, _edges(f))), original, report, aliases)
+    edges = (remap[edges[0]], *edges[1:])  # an increasing renumbering keeps the edge table's order
+    return DiskMesh(v, f, np.array(_single_loop(v, f, edges)), original, report, aliases)
 
 
 def _used_vertices(faces: np.ndarray, n: int) -> np.ndarray:
