@@ -13,23 +13,25 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def _edge_table(directed: np.ndarray, n: int):
-    """Undirected edge id of each directed edge (bucketed by its lower vertex: O(n + edges)), the first directed
-    edge of each undirected edge, and how many directed edges use each."""
-    size = directed.shape[0]
-    lo, hi = np.empty(size, np.int64), np.empty(size, np.int64)
-    for k in range(size):
-        lo[k], hi[k] = min(directed[k, 0], directed[k, 1]), max(directed[k, 0], directed[k, 1])
+def _edge_table(faces: np.ndarray, n: int):
+    """Directed edges (3m, 2), the undirected edge id of each (bucketed by its lower vertex: O(n + m)), the first
+    directed edge of each undirected edge, and how many directed edges use each."""
+    m = faces.shape[0]
+    size = 3 * m
+    directed = np.empty((size, 2), np.int64)
     start = np.zeros(n + 1, np.int64)
     for k in range(size):
-        start[lo[k] + 1] += 1
+        a, b = faces[k % m, k // m], faces[k % m, (k // m + 1) % 3]
+        directed[k, 0], directed[k, 1] = a, b
+        start[min(a, b) + 1] += 1
     for a in range(n):
         start[a + 1] += start[a]
     order = np.empty(size, np.int64)
     fill = start[:-1].copy()
     for k in range(size):
-        order[fill[lo[k]]] = k
-        fill[lo[k]] += 1
+        lo = min(directed[k, 0], directed[k, 1])
+        order[fill[lo]] = k
+        fill[lo] += 1
     mark = np.full(n, -1, np.int64)
     inverse = np.empty(size, np.int64)
     first = np.empty(size, np.int64)
@@ -38,15 +40,17 @@ def _edge_table(directed: np.ndarray, n: int):
     for a in range(n):
         for p in range(start[a], start[a + 1]):
             k = order[p]
-            if mark[hi[k]] < 0:
-                mark[hi[k]] = edges
+            hi = max(directed[k, 0], directed[k, 1])
+            if mark[hi] < 0:
+                mark[hi] = edges
                 first[edges] = k
                 edges += 1
-            inverse[k] = mark[hi[k]]
-            counts[mark[hi[k]]] += 1
+            inverse[k] = mark[hi]
+            counts[mark[hi]] += 1
         for p in range(start[a], start[a + 1]):
-            mark[hi[order[p]]] = -1
-    return inverse, first[:edges], counts[:edges]
+            k = order[p]
+            mark[max(directed[k, 0], directed[k, 1])] = -1
+    return directed, inverse, first[:edges], counts[:edges]
 
 
 def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -67,8 +71,8 @@ def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     counts : ndarray (e,)
         Directed edges (triangles) using each undirected edge: 1 on the boundary, 2 inside, more when non-manifold.
     """
-    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    inverse, first, counts = _edge_table(directed, int(faces.max()) + 1 if len(faces) else 0)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    directed, inverse, first, counts = _edge_table(faces, int(faces.max()) + 1 if len(faces) else 0)
     return directed, first, inverse, counts
 
 

@@ -111,8 +111,9 @@ def _repeated_corner(faces: np.ndarray) -> np.ndarray:
 
 def _edges(faces):
     """Directed edges (3m, 2), the first directed edge of each undirected edge, each directed edge's undirected
-    edge id, and use counts (:func:`~meshreg.mesh.graph.edge_table`)."""
-    return edge_table(faces)
+    edge id, use counts (:func:`~meshreg.mesh.graph.edge_table`), and the directed edges used once (the rims)."""
+    directed, first, inverse, counts = edge_table(faces)
+    return directed, first, inverse, counts, np.flatnonzero(counts[inverse] == 1)
 
 
 def prepare_disk(
@@ -299,7 +300,7 @@ def _without_ears(v: np.ndarray, f: np.ndarray, report: list, edges: tuple) -> n
     the ears at those corners are kept (a square sheet's corner triangles are ears)."""
     if len(f) <= 1:
         return f
-    _, _, inverse, counts = edges
+    _, _, inverse, counts, _ = edges
     on_boundary = (counts[inverse] == 1).reshape(3, -1).T  # (m, 3): side k runs from corner k to corner k + 1
     ears = on_boundary.sum(axis=1) >= 2
     if not ears.any() or ears.all():
@@ -367,7 +368,7 @@ def _orientation_flips(faces, edges) -> np.ndarray:
     """Which triangles (m,) to reverse so that every interior edge is crossed in opposite directions by its
     two triangles (a consistent winding; per component, the orientation of most triangles wins). ``edges``
     is :func:`_edges` of the faces."""
-    e, first, inverse, _ = edges
+    e, first, inverse, _, _ = edges
     m = len(faces)
     b = np.flatnonzero(first[inverse] != np.arange(len(e)))  # the second directed edge of each interior edge
     a = first[inverse[b]]
@@ -415,13 +416,13 @@ def boundary_sizes(faces) -> list[int]:
 def boundary_edges(faces: np.ndarray, edges: tuple | None = None) -> np.ndarray:
     """Directed edges (b, 2) used by one triangle only (the rim and the rims of holes), in the faces' order
     (``edges``: :func:`_edges` of the faces, when known)."""
-    e, _, inverse, counts = _edges(faces) if edges is None else edges
-    return e[counts[inverse] == 1]
+    e, _, _, _, rim = _edges(faces) if edges is None else edges
+    return e[rim]
 
 
 def unique_edges(faces: np.ndarray) -> np.ndarray:
     """Undirected edges (e, 2) of a triangle mesh, each once as (lower id, higher id), sorted."""
-    directed, first, _, _ = _edges(faces)
+    directed, first, _, _, _ = _edges(faces)
     edges = np.sort(directed[first], axis=1)
     return edges[np.lexsort((edges[:, 1], edges[:, 0]))]
 
