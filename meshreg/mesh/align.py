@@ -450,9 +450,14 @@ def axes_pose(first: Surface, second: Surface) -> Alignment | None:
     coarse = _subsample(cloud2, COARSE_POINTS, rng)
     flips = [np.diag(d) for d in ((1.0, 1.0, 1.0), (1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))]
     turns = Rotation.from_rotvec(np.outer(np.radians(AXES_TURNS), [0.0, 0.0, 1.0])).as_matrix()
-    rotations = [axes1 @ turn @ d @ axes2.T for turn in turns for d in flips]
-    poses = [icp(coarse, first, _similarity(rotation, scale, c2, c1))[0] for rotation in rotations]
-    scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m in poses])
+    poses, scores = [], []
+    for turn in turns:  # until a pose coincides closely (SCORE_ENOUGH at the tightest level: the same surface)
+        for d in flips:
+            poses.append(icp(coarse, first, _similarity(axes1 @ turn @ d @ axes2.T, scale, c2, c1))[0])
+            scores.append(overlap_scores(cloud1, first, cloud2, second, poses[-1]))
+        if max(score[0] for score in scores) >= SCORE_ENOUGH:
+            break
+    scores = np.array(scores)
     best = int(np.argmax(scores[:, _ranking(scores)]))
     matrix, rms = icp(cloud2, first, poses[best], iterations=ICP_FINE)
     finals = [(matrix, rms)]

@@ -375,8 +375,9 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
     """Regime "full" from a cheap look, or None when it does not show it (then :func:`rigid_overlap` runs the
     feature search): at the principal-axes pose (:func:`meshreg.mesh.align.axes_pose`), at most ``tolerance`` of
-    QUICK_SAMPLE random points spread evenly over each mesh's area lie beyond the other's rim, and COINCIDE_ENOUGH of the rest coincides with the other mesh. The sides of the
-    returned overlap hold the samples' signed distances, not every vertex's (a "full" overlap trims nothing).
+    QUICK_SAMPLE random points spread evenly over each mesh's area lie beyond the other's rim, and COINCIDE_ENOUGH
+    of the rest coincide with the other mesh. The sides of the returned overlap hold the samples' signed
+    distances, not every vertex's (a "full" overlap trims nothing).
 
     Parameters
     ----------
@@ -395,7 +396,9 @@ def same_region(first: Surface, second: Surface, tolerance: float, start: float 
     edge = max(first.edge, scale * second.edge)
     points1, points2 = (area_sample(s, QUICK_SAMPLE, seed) for seed, s in enumerate((first, second)))
     points2 = transform_points(matrix, points2)
-    signed1, distance1 = (scale * d for d in exact_rim_distance(transform_points(np.linalg.inv(matrix), points1), second))
+    signed1, distance1 = (
+        scale * d for d in exact_rim_distance(transform_points(np.linalg.inv(matrix), points1), second)
+    )
     signed2, distance2 = exact_rim_distance(points2, first)
     one, two = (_sampled_side(snapped(v, edge), d) for v, d in ((signed1, distance1), (signed2, distance2)))
     rms, coincide = _coincidence(one, two, edge)
