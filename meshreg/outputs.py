@@ -139,7 +139,9 @@ def write_mesh_registration(
     result = mr.result
     (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
     c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
-    on_second, on_first = result.correspondence(), result.correspondence_on_first()
+    on_second = result.correspondence()
+    # result.correspondence_on_first(), from the second's matches on the first's square already found
+    on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]
     uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
     title = f"E = {result.energy:.3g}"
     g1, g2 = mr.grids
