@@ -246,6 +246,10 @@ MESH_FLAG_CASES = {
     "--no-cleanup": (["--no-cleanup"], lambda r: r.params["cleanup"] is False),
     "--corner-search": (["--corner-search", "2"], lambda r: r.params["corner_search"] == 2),
     "--overlap": (["--overlap", "off"], lambda r: r.params["overlap"] == "off" and "overlap" not in r.info),
+    "--overlap-quick": (
+        ["--overlap-quick", "0"],
+        lambda r: r.params["overlap_quick"] == 0 and "quick" not in r.info["overlap"]["pose_source"],
+    ),
     "--corners1": (["--corners1", "CORNERS1"], lambda r: len(r.params["corners1"]) == 4),
     "--corners2": (["--corners2", "CORNERS2"], lambda r: len(r.params["corners2"]) == 4),
 }
