@@ -1,8 +1,8 @@
 """Figures drawn beside the computation: on Linux with more than one core, :class:`Painter` forks worker
 processes as soon as it is made; each imports matplotlib (about 0.4 s) while the caller registers, then draws the
 figures it is given while the caller writes its other files, one figure per worker. Elsewhere (or with one core) the
-figures are drawn in the calling process when asked. Either way every figure is written when :meth:`Painter.finish`
-returns, and an error drawing one is raised there.
+figures are drawn in the calling process by :meth:`Painter.finish`. Either way every figure is written when
+:meth:`Painter.finish` returns, and an error drawing one is raised there.
 """
 
 from __future__ import annotations
@@ -35,23 +35,26 @@ class Painter:
     def __init__(self, workers: int):
         self._pool = None
         self._jobs: list[Future] = []
+        self._queued: list[tuple] = []
         if workers > 0 and sys.platform.startswith("linux") and (os.cpu_count() or 1) > 1:
             context = multiprocessing.get_context("fork")
             self._pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker)
             self._pool.submit(int)  # the workers start now (forked ones all at once) and import matplotlib
 
     def draw(self, name: str, *args, **kwargs) -> None:
-        """``meshreg.viz.<name>(*args, **kwargs)``: queued for a worker, or drawn now without them."""
+        """Queue ``meshreg.viz.<name>(*args, **kwargs)`` (for a worker, or for :meth:`finish` without them)."""
         if self._pool is None:
-            _draw(name, args, kwargs)
+            self._queued.append((name, args, kwargs))
         else:
             self._jobs.append(self._pool.submit(_draw, name, args, kwargs))
 
     def finish(self) -> None:
-        """Wait for every queued figure (raising the first error)."""
-        jobs, self._jobs = self._jobs, []
+        """Draw (or wait for) every queued figure, raising the first error."""
+        jobs, queued, self._jobs, self._queued = self._jobs, self._queued, [], []
         for job in jobs:
             job.result()
+        for name, args, kwargs in queued:
+            _draw(name, args, kwargs)
 
     def __enter__(self) -> Painter:
         return self

@@ -294,3 +294,17 @@ def test_every_key_of_a_mesh_result_is_documented(mesh_files, tmp_path):
         keys = set(data.files) | set(json.loads(str(data["params"]))) | set(json.loads(str(data["timings"])))
     files = {p.name for p in out.rglob("*") if p.is_file()}
     assert keys | files <= documented, sorted((keys | files) - documented)
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_there(tmp_path, workers):
+    from meshreg.painter import Painter
+
+    points = np.random.default_rng(0).random((5, 6, 3))
+    with Painter(workers) as painter:
+        painter.draw("plot_registration", points, points, [1.0, 0.5], tmp_path / "r.png", title="same")
+        painter.finish()
+        assert (tmp_path / "r.png").stat().st_size > 1000
+        painter.draw("plot_registration", points, points[:2], [1.0], tmp_path / "bad.png")
+        with pytest.raises(ValueError):
+            painter.finish()
