@@ -389,6 +389,8 @@ def same_region(first: Surface, second: Surface, tolerance: float, start: float 
         ``time.perf_counter()`` when the overlap search began (for :attr:`Overlap.seconds`).
     """
     start = time.perf_counter() if start is None else start
+    if not (first.area > 0 and second.area > 0):
+        return None
     alignment = axes_pose(first, second)
     if alignment is None:
         return None
