@@ -143,7 +143,7 @@ def parameters() -> dict:
     from . import align, warp
 
     names = {
-        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH"),
+        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH", "AXES_TURNS"),
         warp: ("WARP_WEIGHTS", "WARP_ROUNDS", "WARP_TRIM", "WARP_TRIM_FLOOR"),
     }
     out = {name: getattr(module, name) for module, keys in names.items() for name in keys}
