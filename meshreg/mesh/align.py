@@ -56,7 +56,7 @@ SCORE_REACH = 2.0  # scored points lie within this many times the level (>= 1 ed
 FINALISTS = 3  # candidates refined on every sample point
 SCALE_TIE = 0.05  # scales within this log ratio of one another are tried once
 POINT_WEIGHT = 0.0  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
-AXES_TURNS = (0.0, 45.0, 90.0, 135.0)  # degrees: turns of the principal-axes poses about the third axis (axes_pose)
+AXES_TURNS = (0.0, 90.0)  # degrees: turns of the principal-axes poses about the third axis (axes_pose)
 ICP_VOXEL = 0.03  # voxel of the ICP samples, in units of sqrt(area) of each mesh (>= 1 edge length)
 
 
