@@ -407,9 +407,10 @@ def same_region(first: Surface, second: Surface, tolerance: float, start: float 
     if coincide < COINCIDE_ENOUGH or min(one.fraction, two.fraction) < 1 - min(tolerance, FULL_TOLERANCE["rigid"]):
         return None
     posed = transform_points(matrix, second.vertices)
-    seconds = time.perf_counter() - start
     quick = Alignment(matrix, alignment.rms, alignment.scores, "principal axes (quick check)")
-    return Overlap("full", one, two, quick, posed, edge, {"pose": rms}, coincide, float("nan"), seconds, "", first)
+    slid = slide(first, np.ones(len(first.vertices), dtype=bool), rms) / edge  # reported, as by rigid_overlap
+    seconds = time.perf_counter() - start
+    return Overlap("full", one, two, quick, posed, edge, {"pose": rms}, coincide, slid, seconds, "", first)
 
 
 def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray) -> Overlap:
