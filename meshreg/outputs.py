@@ -139,7 +139,7 @@ def write_mesh_registration(
     from .mesh.correspond import register_meshes
     from .mesh.export import colored_outputs, write_ply
 
-    with Painter(2) as painter:
+    with Painter(1) as painter:
         mr = register_meshes(first, second, options, callback)
         result = mr.result
         (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)

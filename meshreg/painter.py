@@ -1,6 +1,8 @@
-"""Figures drawn beside the computation: on Linux with more than one core, :class:`Painter` forks worker
-processes as soon as it is made; each imports matplotlib (about 0.4 s) while the caller registers, then draws the
-figures it is given while the caller writes its other files, one figure per worker. Elsewhere (or with one core) the
+"""Figures drawn beside the computation: on Linux with more than one core, :class:`Painter` forks its worker
+process(es) as soon as it is made; a worker imports matplotlib (about 0.4 s) while the caller registers, then draws
+the figures it is given while the caller writes its other files. One worker draws every figure of a registration:
+it then spends the CPU time the caller would have spent, on the other core (a second worker would import matplotlib
+twice and, on a loaded 2-core machine, slow the caller more than it saves). Elsewhere (or with one core) the
 figures are drawn in the calling process by :meth:`Painter.finish`. Either way every figure is written when
 :meth:`Painter.finish` returns, and an error drawing one is raised there.
 """
