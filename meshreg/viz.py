@@ -97,7 +97,7 @@ def plot_registration(
     for k, line in enumerate(notes):
         fig.text(0.01, 0.01 + 0.035 * k, line, fontsize=9, color="tab:red", wrap=True)
     path = Path(path)
-    fig.savefig(path, dpi=FIGURE_DPI)
+    fig.savefig(path, dpi=FIGURE_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
     return path
 
 
@@ -174,6 +174,8 @@ def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 ELEVATION, AZIMUTH = 35.0, -60.0  # oblique camera of the mesh pictures, degrees
 MESH_DPI = 110  # pixels per inch of meshes.png (each panel 5.5 x 5.2 inches)
 FIGURE_DPI = 110  # pixels per inch of registration.png (15 x 4.8 inches)
+# zlib level of meshes.png and registration.png: 1 writes them in two thirds of the time of the default 6, 15-25% larger
+PNG_COMPRESSION = 1
 
 
 def plot_meshes(
@@ -225,7 +227,7 @@ def plot_meshes(
         bar.set_label("fraction of sqrt(area)")
     fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
     path = Path(path)
-    fig.savefig(path, dpi=MESH_DPI)
+    fig.savefig(path, dpi=MESH_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
     return path
 
 
