@@ -3,7 +3,8 @@ process(es) as soon as it is made; a worker imports matplotlib (about 0.4 s) whi
 the figures it is given while the caller writes its other files. One worker draws every figure of a registration:
 it then spends the CPU time the caller would have spent, on the other core (a second worker would import matplotlib
 twice and, on a loaded 2-core machine, slow the caller more than it saves). Elsewhere (or with one core) the
-figures are drawn in the calling process by :meth:`Painter.finish`. Either way every figure is written when
+figures are drawn in the calling process by :meth:`Painter.finish` (also inside a daemonic pool worker or while other
+Python threads run, where a fork is unsafe). Either way every figure is written when
 :meth:`Painter.finish` returns, and an error drawing one is raised there.
 """
 
@@ -13,7 +14,20 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 from concurrent.futures import Future, ProcessPoolExecutor
+
+
+def _may_fork() -> bool:
+    """Whether forking a worker is safe and useful here: Linux, more than one core, not inside a daemonic process
+    (a pool worker may not have children) and no other Python thread running (a fork copies locks other threads
+    may hold, e.g. in a Dask client or a GUI)."""
+    return (
+        sys.platform.startswith("linux")
+        and (os.cpu_count() or 1) > 1
+        and not multiprocessing.current_process().daemon
+        and threading.active_count() == 1
+    )
 
 
 def _start_worker() -> None:
@@ -38,7 +52,7 @@ class Painter:
         self._pool = None
         self._jobs: list[Future] = []
         self._queued: list[tuple] = []
-        if workers > 0 and sys.platform.startswith("linux") and (os.cpu_count() or 1) > 1:
+        if workers > 0 and _may_fork():
             context = multiprocessing.get_context("fork")
             self._pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker)
             self._pool.submit(int)  # the workers start now (forked ones all at once) and import matplotlib

@@ -308,3 +308,15 @@ def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_the
         painter.draw("plot_registration", points, points[:2], [1.0], tmp_path / "bad.png")
         with pytest.raises(ValueError):
             painter.finish()
+
+
+def test_the_painter_does_not_fork_while_another_thread_runs():
+    import threading
+
+    from meshreg.painter import Painter
+
+    made = []
+    thread = threading.Thread(target=lambda: made.append(Painter(1)))
+    thread.start()
+    thread.join()
+    assert made[0]._pool is None
