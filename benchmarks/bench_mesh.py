@@ -1,11 +1,18 @@
-"""Speed of the mesh front end: parametrize (mean-value Laplacian) and resample on 101 x 101, per mesh size,
-and the whole registration of two meshes of about the same size.
+"""Speed of the mesh front end per mesh size: check and clean (prepare_disk), parametrize (mean-value Laplacian),
+resample on 101 x 101, each size in a fresh process with its peak memory; and the whole registration of two meshes
+of about the same size.
 
     python benchmarks/bench_mesh.py [--faces 10000 100000 1000000] [--register 100000]
+
+Peak memory is the growth of the process's peak resident set over the front end (the mesh itself is made first).
+Times on a shared machine vary by +-30 %.
 """
 
 import argparse
+import multiprocessing
+import resource
 import time
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -15,27 +22,40 @@ from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.samples import random_disk_mesh, terrain_function
 
 
+def front_end(faces: int) -> tuple[int, float, float, float, float]:
+    """Triangles, seconds to check, parametrize and resample one terrain mesh of about ``faces`` triangles, and the
+    peak memory (MB) they added; run in a fresh process after a small warm-up (numba kernels)."""
+    np.seterr(all="ignore")
+    surface = terrain_function()
+    v, f, _ = random_disk_mesh(surface, 500, seed=0)
+    disk = prepare_disk(v, f)
+    resample_grid(disk.vertices, disk.faces, parametrize(disk)[0])
+    v, f, _ = random_disk_mesh(surface, faces // 2, seed=1)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    disk = prepare_disk(v, f)
+    t1 = time.perf_counter()
+    uv, _ = parametrize(disk)
+    t2 = time.perf_counter()
+    resample_grid(disk.vertices, disk.faces, uv)
+    t3 = time.perf_counter()
+    return len(f), t1 - t0, t2 - t1, t3 - t2, (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--faces", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     parser.add_argument("--register", type=int, nargs="*", default=[100_000])
     args = parser.parse_args()
-    surface = terrain_function()
-    v, f, _ = random_disk_mesh(surface, 500, seed=0)
-    disk = prepare_disk(v, f)
-    resample_grid(disk.vertices, disk.faces, parametrize(disk)[0])  # compile the numba kernel
-    print("| faces | check s | parametrize s | resample 101x101 s | total s |")
-    print("|---|---|---|---|---|")
+    print("| faces | check s | parametrize s | resample 101x101 s | total s | peak MB |")
+    print("|---|---|---|---|---|---|")
+    context = multiprocessing.get_context("spawn")
     for nf in args.faces:
-        v, f, _ = random_disk_mesh(surface, nf // 2, seed=1)
-        t0 = time.perf_counter()
-        disk = prepare_disk(v, f)
-        t1 = time.perf_counter()
-        uv, _ = parametrize(disk)
-        t2 = time.perf_counter()
-        resample_grid(disk.vertices, disk.faces, uv)
-        t3 = time.perf_counter()
-        print(f"| {len(f)} | {t1 - t0:.2f} | {t2 - t1:.2f} | {t3 - t2:.2f} | {t3 - t0:.2f} |", flush=True)
+        with ProcessPoolExecutor(1, mp_context=context) as pool:
+            count, check, param, resample, memory = pool.submit(front_end, nf).result()
+        total = check + param + resample
+        print(f"| {count} | {check:.2f} | {param:.2f} | {resample:.2f} | {total:.2f} | +{memory:.0f} |", flush=True)
+    surface = terrain_function()
     for nf in args.register:
         a = random_disk_mesh(surface, nf // 2, seed=2)
         b = random_disk_mesh(surface, nf // 2, seed=3, rotation=Rotation.random(random_state=4).as_matrix(), scale=2.0)

@@ -1,12 +1,13 @@
 """The figures of issue 17 in one table: grid registration in mode "auto" at 101 x 101 and 401 x 401, the mesh
 front end, two meshes through the API and the whole ``meshreg register`` command on two PLY files.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_speed.py [--quick] [--faces 100000] [--large 100000 1000000]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_speed.py [--quick | --meshes] [--faces N] [--large 100000 1000000]
 
 Warm runs: the numba kernels are compiled (or loaded from their cache) by small registrations first. ``--quick``
 runs a subset in under a minute (three of the paper's pairs at 101 x 101, sine 2-3 at 201 x 201, the mesh front
 end, two meshes through the API); the full run adds every paper pair, 401 x 401, the command line and the distance
-matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local processes (``--jobs``). ``--large``
+matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local processes (``--jobs``); ``--meshes``
+runs only the mesh rows (front end, API, whole command). ``--large``
 adds the front end of one mesh per size, each in a fresh process, with its peak memory (a 1M-triangle mesh takes
 about 10 s and 1 GB). Times on a shared machine vary by +-30 %.
 """
@@ -178,13 +179,19 @@ def main():
     parser.add_argument("--faces", type=int, default=100_000, help="triangles per mesh")
     parser.add_argument("--jobs", type=int, default=2, help="local processes of the distance matrix")
     parser.add_argument(
+        "--meshes", action="store_true", help="only the mesh rows: front end, API and the whole command"
+    )
+    parser.add_argument(
         "--large", type=int, nargs="+", metavar="FACES", help="also the front end at these sizes (e.g. 100000 1000000)"
     )
     args = parser.parse_args()
     np.seterr(all="ignore")
     warm_up()
-    rows = grid_rows(args.quick) + mesh_rows(args.faces, args.quick)
-    if not args.quick:
+    if args.meshes:
+        rows = mesh_rows(args.faces, False)
+    else:
+        rows = grid_rows(args.quick) + mesh_rows(args.faces, args.quick)
+    if not (args.quick or args.meshes):
         rows += matrix_rows(args.jobs)
     if args.large:
         rows += large_rows(args.large)

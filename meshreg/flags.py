@@ -105,6 +105,15 @@ FLAGS: tuple[Flag, ...] = (
         group="meshes",
     ),
     Flag(
+        "--overlap-quick",
+        "advanced.overlap_quick",
+        "overlap auto: meshes whose principal-axes pose leaves at most this fraction of each beyond the other's rim "
+        "cover the same region, without the feature search (default 0.01; 0 = always search)",
+        float,
+        metavar="F",
+        group="meshes",
+    ),
+    Flag(
         "--no-cleanup",
         "cleanup",
         "refuse to repair meshes (holes, pieces, ears, pinched vertices)",

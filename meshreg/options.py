@@ -153,6 +153,14 @@ class Advanced:
         sheets with two random triangulations came within 0.006 in distance and 0.0015 in residual (exact
         twins on exactly sampled grids are equal), while the best twin of a terrain against its mirror image,
         a different shape, was 0.24 further.
+    overlap_quick : float
+        Meshes with ``Options.overlap`` "auto": before the feature search for a pose (FPFH + RANSAC), the meshes
+        are taken to cover the same region (overlap regime "full", registered whole) when, at the pose of their
+        principal axes refined by ICP, at most this fraction of each one's area (2000 random points spread
+        evenly) lies beyond the other's rim and 90% of the rest coincides with the other mesh
+        (:func:`meshreg.mesh.overlap.same_region`). At most 0.02 (the tolerance of the full check); 0 = always the
+        feature search. Default 0.01: two random triangulations of one terrain patch leave 0.04% and 0.002% beyond
+        the rims, a crop of 3% is not mistaken for the whole. Saves 1-1.5 s on two 100k-triangle meshes.
     """
 
     dp_rounds: int = 10
@@ -179,6 +187,7 @@ class Advanced:
     choice_window: float = 0.1
     refine_triangles: float = 6.0
     ambiguity: float = 0.01
+    overlap_quick: float = 0.01
 
     def __post_init__(self):
         for name in (
@@ -210,6 +219,7 @@ class Advanced:
         _number("step_fraction", self.step_fraction, 0.0, 1.0, low_open=True)
         _number("choice_window", self.choice_window, 0.0, 1.0, low_open=True)
         _number("refine_triangles", self.refine_triangles, 0.0, math.inf)
+        _number("overlap_quick", self.overlap_quick, 0.0, 0.02)
         _number("max_stretch", self.max_stretch, 1.0, math.inf)
 
     def steps(self, basis: int, **changes) -> StepParams:

@@ -24,6 +24,7 @@ import numpy as np
 from .errors import InputError
 from .files import output_dir, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
+from .painter import Painter
 from .result import Registration
 from .schedule import Progress
 
@@ -115,14 +116,17 @@ def write_grid_registration(
     the prepared directory ``out``, all together or not at all."""
     from .pipeline import register_with
 
-    result = register_with(first, second, options, callback)
-    reverse = register_with(second, first, options) if symmetric else None
-    names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
-    with staged(out, names) as stage:
-        result.save(stage / RESULT_FILE)
-        _registration_figure(result, first, second, stage / FIGURE_FILE, f"{options.mode}: E = {result.energy:.3g}")
-        if reverse is not None:
-            reverse.save(stage / REVERSE_FILE)
+    with Painter(1) as painter:
+        result = register_with(first, second, options, callback)
+        reverse = register_with(second, first, options) if symmetric else None
+        names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
+        with staged(out, names) as stage:
+            title = f"{options.mode}: E = {result.energy:.3g}"
+            _registration_figure(painter, result, first, second, stage / FIGURE_FILE, title)
+            result.save(stage / RESULT_FILE)
+            if reverse is not None:
+                reverse.save(stage / REVERSE_FILE)
+            painter.finish()
     return Written(result, [out / name for name in names], reverse=reverse)
 
 
@@ -130,65 +134,72 @@ def write_mesh_registration(
     first, second, out: Path, options: Options, callback: Progress | None = None, html: bool = False
 ) -> Written:
     """Register two meshes (:class:`meshreg.surfaces.Mesh`) and write coloured meshes, ``result.npz``, both
-    figures and, with ``html``, the interactive page ``view.html``."""
+    figures and, with ``html``, the interactive page ``view.html``. The figures are drawn by a
+    :class:`~meshreg.painter.Painter` (in worker processes where it can) while the other files are written."""
     from .mesh.correspond import register_meshes
     from .mesh.export import colored_outputs, write_ply
-    from .viz import plot_meshes
 
-    mr = register_meshes(first, second, options, callback)
-    result = mr.result
-    (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
-    c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
-    on_second, on_first = result.correspondence(), result.correspondence_on_first()
-    uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
-    title = f"E = {result.energy:.3g}"
-    g1, g2 = mr.grids
-    names = [RESULT_FILE, FIGURE_FILE, *MESH_FILES] + ([VIEW_FILE] if html else [])
-    with staged(out, names) as stage:
-        write_ply(stage / "first.ply", v1, f1, c1)
-        write_ply(stage / "second.ply", v2, f2, c2)
-        write_ply(stage / "registered.ply", *registered)
-        result.save(stage / RESULT_FILE, **uv, matched_first=on_second, matched_second=on_first)
-        plot_meshes(
-            stage / "meshes.png",
-            v1,
-            f1,
-            c1,
-            v2,
-            f2,
-            c2,
-            title=f"{title}: corresponding points share a colour and a checkerboard square",
-            second_to_first=np.linalg.inv(result.transform),
-            distance=result.distances() / np.sqrt(result.second.area()),
-        )
-        _registration_figure(result, g1, g2, stage / FIGURE_FILE, title)
-        if html:
-            from .view import write_view
-
-            write_view(
-                stage / VIEW_FILE,
-                (v1, f1, c1),
-                (v2, f2, c2),
-                (on_second, on_first),
-                np.linalg.inv(result.transform),
-                title=f"{title}: hover a point to see its match",
+    with Painter(1) as painter:
+        mr = register_meshes(first, second, options, callback)
+        result = mr.result
+        (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
+        c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
+        on_second = result.correspondence()
+        # result.correspondence_on_first(), from the second's matches on the first's square already found
+        on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]
+        uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
+        title = f"E = {result.energy:.3g}"
+        names = [RESULT_FILE, FIGURE_FILE, *MESH_FILES] + ([VIEW_FILE] if html else [])
+        with staged(out, names) as stage:
+            painter.draw(
+                "plot_meshes",
+                stage / "meshes.png",
+                v1,
+                f1,
+                c1,
+                v2,
+                f2,
+                c2,
+                title=f"{title}: corresponding points share a colour and a checkerboard square",
+                second_to_first=np.linalg.inv(result.transform),
+                distance=result.distances() / np.sqrt(result.second.area()),
             )
+            _registration_figure(painter, result, *mr.grids, stage / FIGURE_FILE, title)
+            write_ply(stage / "first.ply", v1, f1, c1)
+            write_ply(stage / "second.ply", v2, f2, c2)
+            write_ply(stage / "registered.ply", *registered)
+            result.save(stage / RESULT_FILE, **uv, matched_first=on_second, matched_second=on_first)
+            if html:
+                from .view import write_view
+
+                write_view(
+                    stage / VIEW_FILE,
+                    (v1, f1, c1),
+                    (v2, f2, c2),
+                    (on_second, on_first),
+                    np.linalg.inv(result.transform),
+                    title=f"{title}: hover a point to see its match",
+                )
+            painter.finish()
+    return Written(result, [out / name for name in names], _mesh_notes(mr.info))
+
+
+def _mesh_notes(info: dict) -> list[str]:
+    """What the cleanup, the parametrization and the overlap check reported, one line each."""
     notes = []
     for name in ("first", "second"):
-        info = mr.info[name]
-        notes += [f"{name} mesh cleanup: {line}" for line in info["cleanup"]]
-        if info["flipped"]:
-            notes.append(f"{name} mesh: {info['flipped']} triangles flipped by the parametrization")
-    if "overlap" in mr.info:
-        notes.append(overlap_note(mr.info["overlap"]))
-    return Written(result, [out / name for name in names], notes)
+        notes += [f"{name} mesh cleanup: {line}" for line in info[name]["cleanup"]]
+        if info[name]["flipped"]:
+            notes.append(f"{name} mesh: {info[name]['flipped']} triangles flipped by the parametrization")
+    if "overlap" in info:
+        notes.append(overlap_note(info["overlap"]))
+    return notes
 
 
-def _registration_figure(result: Registration, first, second, path: Path, title: str) -> Path:
+def _registration_figure(painter: Painter, result: Registration, first, second, path: Path, title: str) -> None:
     """``registration.png`` of a result of the grids ``first`` and ``second`` (as given; both drawn at area 1)."""
-    from .viz import plot_registration
-
-    return plot_registration(
+    painter.draw(
+        "plot_registration",
         result.apply(first.scaled().points),
         second.scaled().at(result.h),
         result.energy_history,

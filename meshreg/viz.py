@@ -1,8 +1,10 @@
 """Every figure meshreg writes (PNG), drawn on :class:`matplotlib.figure.Figure` objects: no pyplot state and no
 backend switch, so importing this module changes nothing in a notebook.
 
-- :func:`plot_registration`: boundaries of R c1 and c2 o h, as in the paper, and the energy per accepted step;
-- :func:`plot_meshes`: two meshes side by side, coloured so that corresponding points share a colour;
+- :func:`plot_registration`: boundaries of R c1 and c2 o h, as in the paper (projected by an orthographic camera),
+  and the energy per accepted step;
+- :func:`plot_meshes`: two meshes side by side, coloured so that corresponding points share a colour (rendered to
+  images with a depth buffer, :func:`render_mesh`);
 - :func:`plot_matrix`: a distance matrix as a heat map ordered by a dendrogram, and its MDS embedding.
 """
 
@@ -10,13 +12,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numba
 import numpy as np
 from matplotlib.figure import Figure
-from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the "3d" projection)
 
-# a mesh panel draws at most about this many triangles: larger meshes are simplified for the picture by vertex
-# clustering (matplotlib draws one path per triangle: two 100k-triangle meshes took 4 s to draw, now 0.6 s)
-FIGURE_FACES = 20_000
+# mesh panels are rendered to images with a depth buffer (:func:`render_mesh`; matplotlib's 3D axes drew one path
+# per triangle: two 100k-triangle meshes took 4 s, 1.2-2 s from copies simplified to 20000 triangles), the mesh
+# filling all but this fraction of the panel on each side
+RENDER_MARGIN = 0.03
 
 
 def _boundary(points: np.ndarray) -> np.ndarray:
@@ -59,15 +62,18 @@ def plot_registration(
     """
     first = first_rotated - first_rotated.reshape(-1, 3).mean(axis=0)  # E does not see translations: overlay them
     second = second_registered - second_registered.reshape(-1, 3).mean(axis=0)
-    fig = Figure(figsize=(15, 4.8))
-    ax = fig.add_subplot(1, 3, 1, projection="3d")
+    fig = Figure(figsize=(15, 4.8), dpi=FIGURE_DPI)
+    bottom = 0.12 + 0.035 * len(notes)
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=bottom, top=0.9, wspace=0.3)
+    ax = fig.add_subplot(1, 3, 1)
+    turn = camera(ELEVATION, AZIMUTH)[:2]  # the curves drawn as an orthographic camera sees them
     for pts, style, label in ((first, "b-", "R c1"), (second, "r--", "c2 o h")):
-        loop = _boundary(pts)
-        ax.plot(loop[:, 0], loop[:, 1], loop[:, 2], style, label=label)
+        ax.plot(*(_boundary(pts) @ turn.T).T, style, label=label)
         for j in np.linspace(0, pts.shape[1] - 1, 5).astype(int)[1:-1]:
-            ax.plot(*pts[:, j].T, style, lw=0.6, alpha=0.6)
+            ax.plot(*(pts[:, j] @ turn.T).T, style, lw=0.6, alpha=0.6)
     ax.legend(loc="upper left")
-    ax.set_box_aspect(np.ptp(np.vstack([first.reshape(-1, 3), second.reshape(-1, 3)]), axis=0) + 1e-9)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_axis_off()
     ax.set_title(title or "after registration (both centred, area 1)", fontsize=10)
     gap = fig.add_subplot(1, 3, 2)
     image = gap.imshow(np.linalg.norm(first - second, axis=-1).T, origin="lower", extent=(0, 1, 0, 1), cmap="magma")
@@ -76,24 +82,22 @@ def plot_registration(
     gap.set_ylabel("t (first surface)")
     gap.set_title("where the registered surfaces differ", fontsize=10)
     curve = fig.add_subplot(1, 3, 3)
-    energies = np.maximum(np.asarray(history, dtype=float), 1e-16)
-    curve.semilogy(energies, "k.-", ms=3)
+    values = np.maximum(np.asarray(history, dtype=float), 1e-16)
+    energies = np.log10(values)  # log10 on a linear axis: the log axis's labels took 0.2-0.5 s of mathtext
+    curve.plot(energies, "k.-", ms=3)
     stages = list(stages)
     if len(stages) == len(energies):
         for k, level in _level_starts(stages):
             curve.axvline(k, color="tab:blue", lw=0.8, alpha=0.6)
             curve.annotate(level, (k, energies.max()), rotation=90, va="top", ha="right", fontsize=8, color="tab:blue")
     curve.set_xlabel("accepted step")
-    curve.set_ylabel(minimized)
-    curve.set_title(f"energy: {energies[0]:.3g} -> {energies[-1]:.3g}", fontsize=10)
-    curve.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    curve.set_ylabel(f"log10 {minimized}")
+    curve.set_title(f"energy: {values[0]:.3g} -> {values[-1]:.3g}", fontsize=10)
+    curve.grid(True, alpha=0.3)
     for k, line in enumerate(notes):
         fig.text(0.01, 0.01 + 0.035 * k, line, fontsize=9, color="tab:red", wrap=True)
-    if notes:
-        fig.subplots_adjust(bottom=0.12 + 0.035 * len(notes))
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=FIGURE_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
     return path
 
 
@@ -168,6 +172,10 @@ def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 
 ELEVATION, AZIMUTH = 35.0, -60.0  # oblique camera of the mesh pictures, degrees
+MESH_DPI = 110  # pixels per inch of meshes.png (each panel 5.5 x 5.2 inches)
+FIGURE_DPI = 110  # pixels per inch of registration.png (15 x 4.8 inches)
+# zlib level of meshes.png and registration.png: 1 writes them in two thirds of the time of the default 6, 15-25% larger
+PNG_COMPRESSION = 1
 
 
 def plot_meshes(
@@ -200,75 +208,110 @@ def plot_meshes(
     if second_to_first is not None:
         v2 = v2 @ second_to_first[:3, :3].T + second_to_first[:3, 3]
     view = _view_rotation(v1, f1)
-    panels = [(v1, f1, c1, f"first mesh ({len(v1)} vertices)")]
+    panels = [(v1, f1, c1[f1].mean(axis=1), f"first mesh ({len(v1)} vertices)")]
     pose = ", in the first's pose" if second_to_first is not None else ""
-    panels.append((v2, f2, c2, f"second mesh ({len(v2)} vertices){pose}"))
-    fig = Figure(figsize=(5.5 * (len(panels) + (distance is not None)), 5.2))
-    count = len(panels) + (distance is not None)
+    panels.append((v2, f2, c2[f2].mean(axis=1), f"second mesh ({len(v2)} vertices){pose}"))
+    if distance is not None:
+        norm, colors = _distance_colors(distance, f1)
+        panels.append((v1, f1, colors, "distance to the corresponding point"))
+    count = len(panels)
+    fig = Figure(figsize=(5.5 * count, 5.2), dpi=MESH_DPI)
+    fig.subplots_adjust(left=0.01, right=0.99 - 0.04 * (distance is not None), bottom=0.02, top=0.88, wspace=0.04)
     for k, (v, f, c, name) in enumerate(panels):
-        _draw_mesh(
-            fig.add_subplot(1, count, k + 1, projection="3d"), (v - v1.mean(axis=0)) @ view.T, f, c[f].mean(1), name
-        )
+        ax = fig.add_subplot(1, count, k + 1)
+        _draw_mesh(ax, (v - v1.mean(axis=0)) @ view.T, f, c, name)
     if distance is not None:
         from matplotlib import cm
-        from matplotlib.colors import Normalize
 
-        finite = distance[np.isfinite(distance)]
-        norm = Normalize(0.0, float(np.percentile(finite, 98)) if len(finite) else 1.0)
-        known = np.isfinite(distance[f1])  # a vertex without a match (outside the overlap, dropped) is NaN
-        total = np.where(known, distance[f1], 0.0).sum(axis=1)
-        face_value = np.where(known.any(axis=1), total / np.maximum(known.sum(axis=1), 1), np.nan)
-        colors = cm.viridis(norm(np.nan_to_num(face_value, nan=0.0)))[:, :3]
-        colors[np.isnan(face_value)] = 0.6
-        ax = fig.add_subplot(1, count, count, projection="3d")
-        _draw_mesh(ax, (v1 - v1.mean(axis=0)) @ view.T, f1, colors, "distance to the corresponding point")
         bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), ax=ax, shrink=0.6, pad=0.02)
         bar.set_label("fraction of sqrt(area)")
-    return _save(fig, path, title or "corresponding points share a colour and a checkerboard square", dpi=110)
+    fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
+    path = Path(path)
+    fig.savefig(path, dpi=MESH_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
+    return path
+
+
+def _distance_colors(distance: np.ndarray, faces: np.ndarray):
+    """The colour scale (0 to the 98th percentile) and face colours (m, 3) of per-vertex distances ``distance``
+    (n,), grey where no vertex of a face has one (NaN: outside the overlap, dropped)."""
+    from matplotlib import cm
+    from matplotlib.colors import Normalize
+
+    finite = distance[np.isfinite(distance)]
+    norm = Normalize(0.0, float(np.percentile(finite, 98)) if len(finite) else 1.0)
+    known = np.isfinite(distance[faces])
+    total = np.where(known, distance[faces], 0.0).sum(axis=1)
+    face_value = np.where(known.any(axis=1), total / np.maximum(known.sum(axis=1), 1), np.nan)
+    colors = cm.viridis(norm(np.nan_to_num(face_value, nan=0.0)))[:, :3]
+    colors[np.isnan(face_value)] = 0.6
+    return norm, colors
 
 
 def _draw_mesh(ax, points: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, title: str) -> None:
-    """Faces in their colours, lit by LIGHT (Lambert, with an ambient floor), on an oblique camera."""
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
-    points, faces, face_colors = simplified(points, faces, face_colors, FIGURE_FACES)
+    """Faces in their colours, lit by LIGHT (Lambert, with an ambient floor), seen by an orthographic camera at
+    ELEVATION and AZIMUTH: rendered to an image the size of the axes (:func:`render_mesh`), shown without axes."""
     tri = points[faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     shade = 0.45 + 0.55 * np.abs(normal @ LIGHT)  # both sides lit: the winding of a scan is arbitrary
     colors = np.clip(face_colors * shade[:, None], 0, 1)
-    ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolors=colors, linewidths=0.2))
-    low, high = points.min(axis=0), points.max(axis=0)
-    ax.set_xlim(low[0], high[0])
-    ax.set_ylim(low[1], high[1])
-    ax.set_zlim(low[2], high[2])
-    ax.set_box_aspect(np.ptp(points, axis=0) + 1e-9)
-    ax.view_init(elev=ELEVATION, azim=AZIMUTH)
+    box = ax.get_position()
+    width, height = ax.figure.get_size_inches() * ax.figure.dpi * np.array([box.width, box.height])
+    ax.imshow(render_mesh(points @ camera(ELEVATION, AZIMUTH).T, faces, colors, int(width), int(height)))
     ax.set_axis_off()
     ax.set_title(title, fontsize=10)
 
 
-def simplified(points: np.ndarray, faces: np.ndarray, face_values: np.ndarray, max_faces: int):
-    """A mesh of about ``max_faces`` triangles or fewer that looks like ``(points (n, 3), faces (m, 3))`` from
-    afar, for drawing: vertices merged per cube of a 3D grid whose spacing sqrt(2 area / max_faces) leaves about
-    max_faces / 2 occupied cubes on a surface, each at the mean of its vertices; triangles that collapse or repeat
-    are dropped, the others keep their row of ``face_values`` (m, k). Meshes small enough are returned as given."""
-    from .mesh.surface import cube_labels
+def camera(elevation: float, azimuth: float) -> np.ndarray:
+    """Rows: the screen's right, its up and the direction towards the viewer (3, 3) of a camera at ``elevation``
+    and ``azimuth`` (degrees, as matplotlib's 3D axes)."""
+    e, a = np.radians(elevation), np.radians(azimuth)
+    towards = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    right = np.array([-np.sin(a), np.cos(a), 0.0])
+    return np.stack([right, np.cross(towards, right), towards])
 
-    if len(faces) <= max_faces:
-        return points, faces, face_values
-    tri = points[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
-    spacing = np.sqrt(2.0 * area / max_faces) if area > 0 else np.ptp(points, axis=0).max() / np.sqrt(max_faces)
-    cluster = cube_labels(points, max(spacing, 1e-300))
-    count = np.bincount(cluster)
-    merged = np.stack([np.bincount(cluster, weights=points[:, k]) / count for k in range(3)], axis=1)
-    new = cluster[faces]
-    keep = (new[:, 0] != new[:, 1]) & (new[:, 1] != new[:, 2]) & (new[:, 0] != new[:, 2])
-    corners = np.sort(new[keep], axis=1)
-    _, first = np.unique((corners[:, 0] * len(count) + corners[:, 1]) * len(count) + corners[:, 2], return_index=True)
-    rows = np.flatnonzero(keep)[np.sort(first)]
-    return merged, new[rows], face_values[rows]
+
+def render_mesh(points: np.ndarray, faces: np.ndarray, colors: np.ndarray, width: int, height: int) -> np.ndarray:
+    """An RGB image (height, width, 3) of triangles (points (n, 3) in screen coordinates: x right, y up, z towards
+    the viewer; faces (m, 3); one colour (m, 3) each) drawn orthographically with a depth buffer: each pixel
+    whose centre lies in a triangle takes the colour of the nearest such triangle; the rest is white. The mesh is
+    scaled to fit with a margin of RENDER_MARGIN, the same scale along x and y."""
+    xy = points[:, :2] - 0.5 * (points[:, :2].min(axis=0) + points[:, :2].max(axis=0))
+    extent = np.maximum(np.ptp(xy, axis=0), 1e-300)
+    scale = (1 - 2 * RENDER_MARGIN) * min(width / extent[0], height / extent[1])
+    screen = np.c_[xy[:, 0] * scale + 0.5 * width - 0.5, 0.5 * height - 0.5 - xy[:, 1] * scale, points[:, 2]]
+    image = np.ones((height, width, 3))
+    _rasterize(
+        np.ascontiguousarray(screen), np.ascontiguousarray(faces, dtype=np.int64), np.asarray(colors, float), image
+    )
+    return image
+
+
+@numba.njit(cache=True)
+def _rasterize(screen, faces, colors, image):  # pragma: no cover (numba)
+    """Draw triangles (pixel x, pixel y with row 0 at the top, depth towards the viewer) into ``image`` in place."""
+    height, width = image.shape[0], image.shape[1]
+    depth = np.full((height, width), -np.inf)
+    for f in range(faces.shape[0]):
+        ax, ay, az = screen[faces[f, 0], 0], screen[faces[f, 0], 1], screen[faces[f, 0], 2]
+        bx, by, bz = screen[faces[f, 1], 0], screen[faces[f, 1], 1], screen[faces[f, 1], 2]
+        cx, cy, cz = screen[faces[f, 2], 0], screen[faces[f, 2], 1], screen[faces[f, 2], 2]
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        if abs(area) < 1e-12:
+            continue
+        x0, x1 = max(int(np.ceil(min(ax, bx, cx))), 0), min(int(np.floor(max(ax, bx, cx))), width - 1)
+        y0, y1 = max(int(np.ceil(min(ay, by, cy))), 0), min(int(np.floor(max(ay, by, cy))), height - 1)
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                wb = ((x - ax) * (cy - ay) - (y - ay) * (cx - ax)) / area
+                wc = ((bx - ax) * (y - ay) - (by - ay) * (x - ax)) / area
+                wa = 1.0 - wb - wc
+                if wa < -1e-9 or wb < -1e-9 or wc < -1e-9:
+                    continue
+                z = wa * az + wb * bz + wc * cz
+                if z > depth[y, x]:
+                    depth[y, x] = z
+                    image[y, x, 0], image[y, x, 1], image[y, x, 2] = colors[f, 0], colors[f, 1], colors[f, 2]
 
 
 def classical_mds(distance: np.ndarray, dims: int = 2) -> np.ndarray:
@@ -334,6 +377,8 @@ def plot_modes(mean: np.ndarray, modes: np.ndarray, deviations: np.ndarray, face
         Standard deviation of each mode's scores.
     faces : ndarray (F, 3)
     """
+    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the "3d" projection)
+
     shown = min(3, len(modes))
     steps = (-2.0, 0.0, 2.0)
     shapes = np.array([mean + s * deviations[m] * modes[m] for m in range(shown) for s in steps] or [mean])
@@ -383,6 +428,7 @@ def write_morph(frames: np.ndarray, faces: np.ndarray, path, fps: int = 12, titl
     """GIF (Pillow, through matplotlib's PillowWriter): the meshes ``frames`` (S, V, 3) in turn, seen from the first
     one's mean normal, faces coloured by the displacement from the first frame along its normals."""
     from matplotlib.animation import PillowWriter
+    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the "3d" projection)
 
     turned, box = _viewed(frames, faces)
     normals = _vertex_normals(turned[0], faces)

@@ -246,6 +246,10 @@ MESH_FLAG_CASES = {
     "--no-cleanup": (["--no-cleanup"], lambda r: r.params["cleanup"] is False),
     "--corner-search": (["--corner-search", "2"], lambda r: r.params["corner_search"] == 2),
     "--overlap": (["--overlap", "off"], lambda r: r.params["overlap"] == "off" and "overlap" not in r.info),
+    "--overlap-quick": (
+        ["--overlap-quick", "0"],
+        lambda r: r.params["overlap_quick"] == 0 and "quick" not in r.info["overlap"]["pose_source"],
+    ),
     "--corners1": (["--corners1", "CORNERS1"], lambda r: len(r.params["corners1"]) == 4),
     "--corners2": (["--corners2", "CORNERS2"], lambda r: len(r.params["corners2"]) == 4),
 }
@@ -290,3 +294,29 @@ def test_every_key_of_a_mesh_result_is_documented(mesh_files, tmp_path):
         keys = set(data.files) | set(json.loads(str(data["params"]))) | set(json.loads(str(data["timings"])))
     files = {p.name for p in out.rglob("*") if p.is_file()}
     assert keys | files <= documented, sorted((keys | files) - documented)
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_there(tmp_path, workers):
+    from meshreg.painter import Painter
+
+    points = np.random.default_rng(0).random((5, 6, 3))
+    with Painter(workers) as painter:
+        painter.draw("plot_registration", points, points, [1.0, 0.5], tmp_path / "r.png", title="same")
+        painter.finish()
+        assert (tmp_path / "r.png").stat().st_size > 1000
+        painter.draw("plot_registration", points, points[:2], [1.0], tmp_path / "bad.png")
+        with pytest.raises(ValueError):
+            painter.finish()
+
+
+def test_the_painter_does_not_fork_while_another_thread_runs():
+    import threading
+
+    from meshreg.painter import Painter
+
+    made = []
+    thread = threading.Thread(target=lambda: made.append(Painter(1)))
+    thread.start()
+    thread.join()
+    assert made[0]._pool is None

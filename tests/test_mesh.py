@@ -341,24 +341,24 @@ def test_nearly_symmetric_sheet_is_not_matched_with_its_mirror_image():
     assert only_best.result.energy == pytest.approx(mr.result.energy, rel=1e-6)
 
 
-def test_simplified_mesh_for_figures_keeps_the_shape():
-    """A 20 000-triangle grid of a paraboloid drawn with at most ~2 000 triangles: fewer triangles, no collapsed
-    or repeated ones, vertices on the surface's bounding box and each kept triangle's colour one of the originals."""
-    from meshreg.viz import simplified
+def test_rendered_mesh_shows_the_nearest_triangle_where_it_covers_the_image():
+    """Two squares seen from above (z towards the viewer), the red one nearer and covering the left half of the
+    blue one: the image is red where it is, blue on the rest of the blue square, white around; the blue square
+    alone, same picture size, fills the image but the margin."""
+    from meshreg.viz import RENDER_MARGIN, render_mesh
 
-    n = 101
-    u, v = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n), indexing="ij")
-    points = np.stack([u, v, u**2 + v**2], axis=-1).reshape(-1, 3)
-    nodes = np.arange(n * n).reshape(n, n)
-    a, b, c, d = nodes[:-1, :-1].ravel(), nodes[1:, :-1].ravel(), nodes[:-1, 1:].ravel(), nodes[1:, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
-    values = np.arange(len(faces), dtype=float)[:, None]
-    p, f, val = simplified(points, faces, values, 2000)
-    assert 500 < len(f) <= 3000 and len(val) == len(f)
-    assert np.all((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]))
-    assert len(np.unique(np.sort(f, axis=1), axis=0)) == len(f)
-    assert np.all(p.min(axis=0) >= points.min(axis=0) - 1e-12) and np.all(p.max(axis=0) <= points.max(axis=0) + 1e-12)
-    assert np.abs(p[:, 2] - (p[:, 0] ** 2 + p[:, 1] ** 2)).max() < 0.05  # merged vertices stay near the surface
-    assert set(val[:, 0]) <= set(values[:, 0])
-    small = faces[:100]
-    assert simplified(points, small, values[:100], 2000)[1] is small  # small enough: drawn as given
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    half = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 1.0], [0.0, 1.0]])
+    points = np.r_[np.c_[square, np.zeros(4)], np.c_[half, np.ones(4)]]
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    colors = np.array([[0.0, 0.0, 1.0]] * 2 + [[1.0, 0.0, 0.0]] * 2)
+    image = render_mesh(points, faces, colors, 100, 100)
+    blue, red, white = (np.all(image == c, axis=2) for c in ([0, 0, 1], [1, 0, 0], [1, 1, 1]))
+    assert np.all(blue | red | white)
+    inner = slice(5, 95)
+    assert red[inner, 5:49].all() and blue[inner, 51:95].all() and not red[:, 51:].any()
+    assert white[:2].all() and white[:, :2].all() and white[-2:].all() and white[:, -2:].all()
+    alone = render_mesh(points[:4], faces[:2], colors[:2], 100, 100)
+    assert np.all(alone[inner, inner] == [0, 0, 1])
+    covered = np.all(alone == [0, 0, 1], axis=2).mean()
+    assert covered == pytest.approx((1 - 2 * RENDER_MARGIN) ** 2, abs=0.03)

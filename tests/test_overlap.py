@@ -12,7 +12,7 @@ from meshreg.mesh import deform
 from meshreg.mesh.align import align
 from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.export import UNMATCHED, colored_outputs
-from meshreg.mesh.overlap import clip, rigid_overlap, signed_rim_distance, slide, trim
+from meshreg.mesh.overlap import clip, rigid_overlap, same_region, signed_rim_distance, slide, trim
 from meshreg.mesh.surface import Surface, transform_points
 from meshreg.mesh.topology import prepare_disk, triangle_areas
 from meshreg.result import Registration
@@ -215,3 +215,19 @@ def test_overlap_off_and_bad_values():
     assert trimmed.vertex_map.tolist() == sorted(trimmed.vertex_map.tolist())  # ids as given, in order
     assert np.allclose(carry @ disk1.vertices, trimmed.vertices)
     assert set(trimmed.vertex_map.tolist()) <= set(disk1.vertex_map.tolist())
+
+
+@pytest.mark.parametrize("name", ["remeshed", *PARTIAL])
+def test_the_quick_check_takes_only_meshes_covering_the_same_region(name):
+    """Two triangulations of one sheet at another scale: "full" from the principal-axes pose, without the feature
+    search; the partial pairs (60-90% of the first): no verdict, the feature search decides."""
+    p = pair(name)
+    s1, s2 = (Surface(disk.vertices, disk.faces) for disk in (prepare_disk(*p.first), prepare_disk(*p.second)))
+    found = same_region(s1, s2, Options().advanced.overlap_quick)
+    if name != "remeshed":
+        assert found is None
+        return
+    assert found.regime == "full" and min(found.first.fraction, found.second.fraction) > 0.99
+    moved = [transform_points(m, p.second[0]) for m in (found.alignment.matrix, true_pose(p))]
+    assert np.linalg.norm(moved[0] - moved[1], axis=1).max() < 0.5 * found.edge  # the true pose within half an edge
+    assert registered(name).result.info["overlap"]["pose_source"] == "principal axes (quick check)"

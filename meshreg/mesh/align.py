@@ -56,6 +56,7 @@ SCORE_REACH = 2.0  # scored points lie within this many times the level (>= 1 ed
 FINALISTS = 3  # candidates refined on every sample point
 SCALE_TIE = 0.05  # scales within this log ratio of one another are tried once
 POINT_WEIGHT = 0.0  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
+AXES_TURNS = (0.0, 90.0)  # degrees: turns of the principal-axes poses about the third axis (axes_pose)
 ICP_VOXEL = 0.03  # voxel of the ICP samples, in units of sqrt(area) of each mesh (>= 1 edge length)
 
 
@@ -428,6 +429,45 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
     matrix, rms = icp(cloud2, first, finals[best], iterations=ICP_EXACT, exact=True)
     scores = overlap_scores(cloud1, first, cloud2, second, matrix)
     return Alignment(matrix, rms, tuple(float(x) for x in scores), candidates[order[best]][1])
+
+
+def axes_pose(first: Surface, second: Surface) -> Alignment | None:
+    """A cheap pose of the second mesh in the first's frame that is right when both cover the same region, or None.
+
+    The principal axes of their ICP samples matched (the 4 proper sign choices of the axes, each also turned by
+    AXES_TURNS about the third axis, the normal of a sheet: the first two axes of a round or square patch are
+    arbitrary) at the scale of the ratio of their areas (1 when within SCALE_TIE of it, as in :func:`align`), each
+    refined by the coarse ICP, the best (by :func:`overlap_scores`) by the fine one. At another scale than 1, the
+    same rotation at scale 1 is refined too, and when it overlaps better (a crop in the same units, which the
+    ratio of the areas would blow up to the whole) the answer is None. No feature search: :func:`align` is the
+    general answer."""
+    rng = np.random.default_rng(RANSAC_SEED)
+    scale = float(np.sqrt(first.area / second.area))
+    scale = 1.0 if abs(np.log(scale)) <= SCALE_TIE else scale
+    cloud1 = voxel_sample(first, max(ICP_VOXEL * np.sqrt(first.area), first.edge))
+    cloud2 = voxel_sample(second, max(ICP_VOXEL * np.sqrt(second.area), second.edge))
+    (c1, axes1), (c2, axes2) = principal_frame(cloud1.points), principal_frame(cloud2.points)
+    coarse = _subsample(cloud2, COARSE_POINTS, rng)
+    flips = [np.diag(d) for d in ((1.0, 1.0, 1.0), (1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))]
+    turns = Rotation.from_rotvec(np.outer(np.radians(AXES_TURNS), [0.0, 0.0, 1.0])).as_matrix()
+    poses, scores = [], []
+    for turn in turns:  # until a pose coincides closely (SCORE_ENOUGH at the tightest level: the same surface)
+        for d in flips:
+            poses.append(icp(coarse, first, _similarity(axes1 @ turn @ d @ axes2.T, scale, c2, c1))[0])
+            scores.append(overlap_scores(cloud1, first, cloud2, second, poses[-1]))
+        if max(score[0] for score in scores) >= SCORE_ENOUGH:
+            break
+    scores = np.array(scores)
+    best = int(np.argmax(scores[:, _ranking(scores)]))
+    matrix, rms = icp(cloud2, first, poses[best], iterations=ICP_FINE)
+    finals = [(matrix, rms)]
+    if scale != 1.0:
+        unit = _similarity(poses[best][:3, :3] / scale, 1.0, c2, c1)
+        finals.append(icp(cloud2, first, icp(coarse, first, unit)[0], iterations=ICP_FINE))
+    scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m, _ in finals])
+    if int(np.argmax(scores[:, _ranking(scores)])) != 0:
+        return None
+    return Alignment(matrix, rms, tuple(float(x) for x in scores[0]), "principal axes")
 
 
 def _subsample(cloud: Cloud, count: int, rng) -> Cloud:

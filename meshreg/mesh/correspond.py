@@ -96,7 +96,7 @@ def register_meshes(
     n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
     if options.overlap == "off":
         return register_disks(disks, maps, n_input, infos, options, callback)
-    found = rigid_overlap(disks[0], disks[1])
+    found = rigid_overlap(disks[0], disks[1], options.advanced.overlap_quick)
     if found.regime == "rigid":
         return register_overlap(disks[0], disks[1], found, n_input, options, infos)
     whole = register_disks(disks, maps, n_input, infos, options, callback)

@@ -31,8 +31,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..rotation import kabsch
-from .align import Alignment, align
-from .surface import Surface
+from .align import Alignment, align, axes_pose
+from .surface import Surface, face_normals, transform_points
 from .topology import DiskMesh, prepare_disk, triangle_areas
 from .warp import arap_warp
 
@@ -54,6 +54,7 @@ SAME_SCALE = 0.05  # a pose within this log ratio of scale 1 keeps the meshes' u
 # about it); 0.9 with a bump on an axis (the pose right within 0.4 degrees); 0.2-0.6 on the benchmark's partial
 # terrain sheets and face scan crops (poses exact); 0 on exact copies
 PINNED = 1.0
+QUICK_SAMPLE = 2000  # points per mesh (spread evenly over its area) that judge the overlap in same_region
 
 
 @dataclass(frozen=True)
@@ -63,10 +64,11 @@ class Side:
     Attributes
     ----------
     signed : ndarray, shape (n,)
-        Per disk vertex, the signed distance to the other mesh's rim (first's units; positive inside).
+        Per disk vertex, the signed distance to the other mesh's rim (first's units; positive inside); per sample
+        point when :func:`same_region` decided (regime "full").
     distance : ndarray, shape (n,)
-        Per disk vertex, the distance to the other mesh (first's units); NaN where it was not measured (see
-        :func:`signed_rim_distance`).
+        Per disk vertex (or sample point), the distance to the other mesh (first's units); NaN where it was not
+        measured (see :func:`signed_rim_distance`).
     fraction : float
         Fraction of the mesh's area where ``signed`` >= 0 (triangles cut along its zero line).
     """
@@ -141,12 +143,12 @@ def parameters() -> dict:
     from . import align, warp
 
     names = {
-        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH"),
+        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH", "AXES_TURNS"),
         warp: ("WARP_WEIGHTS", "WARP_ROUNDS", "WARP_TRIM", "WARP_TRIM_FLOOR"),
     }
     out = {name: getattr(module, name) for module, keys in names.items() for name in keys}
     local = ("SNAP", "BAND", "COINCIDE", "COINCIDE_ENOUGH", "TIGHT", "RIGID_RATIO", "FULL_TOLERANCE", "SAME_SCALE")
-    local += ("PINNED",)
+    local += ("PINNED", "QUICK_SAMPLE")
     out.update({name: globals()[name] for name in local})
     return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
 
@@ -168,12 +170,17 @@ def signed_rim_distance(points: np.ndarray, other: Surface) -> tuple[np.ndarray,
         inner = np.random.default_rng(0).choice(inner, STATISTICS_SAMPLE, replace=False)
     exact[inner] = True
     signed, distance = vertex_rim.copy(), np.full(len(points), np.nan)
-    closest, distance[exact], normal = other.closest(points[exact])
-    rim = other.rim_distance(closest)
-    gap = points[exact] - closest
-    tangential = np.linalg.norm(gap - np.sum(gap * normal, axis=1, keepdims=True) * normal, axis=1)
-    signed[exact] = np.where(rim <= RIM_EPSILON * other.edge, -tangential, rim)
+    signed[exact], distance[exact] = exact_rim_distance(points[exact], other)
     return signed, distance
+
+
+def exact_rim_distance(points: np.ndarray, other: Surface) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`signed_rim_distance` of every point (k, 3) from its closest point on the triangles of ``other``."""
+    closest, distance, normal = other.closest(points)
+    rim = other.rim_distance(closest)
+    gap = points - closest
+    tangential = np.linalg.norm(gap - np.sum(gap * normal, axis=1, keepdims=True) * normal, axis=1)
+    return np.where(rim <= RIM_EPSILON * other.edge, -tangential, rim), distance
 
 
 @dataclass(frozen=True)
@@ -270,6 +277,23 @@ def _side(points: np.ndarray, disk: DiskMesh, other: Surface, edge: float) -> Si
     return Side(signed, distance, area_fraction(disk, signed))
 
 
+def area_sample(surface: Surface, count: int, seed: int) -> np.ndarray:
+    """``count`` random points (count, 3) spread evenly over a surface's area (seeded)."""
+    rng = np.random.default_rng(seed)
+    areas = np.linalg.norm(face_normals(surface.vertices, surface.faces), axis=1)
+    triangle = rng.choice(len(areas), count, p=areas / areas.sum())
+    u, v = rng.random((2, count))
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    corners = surface.vertices[surface.faces[triangle]]
+    return corners[:, 0] + u[:, None] * (corners[:, 1] - corners[:, 0]) + v[:, None] * (corners[:, 2] - corners[:, 0])
+
+
+def _sampled_side(signed: np.ndarray, distance: np.ndarray) -> Side:
+    """A :class:`Side` from points spread evenly over a mesh's area: the fraction is the share of them inside."""
+    return Side(signed, distance, float(np.mean(signed >= 0)))
+
+
 def _coincidence(first: Side, second: Side, edge: float) -> tuple[float, float]:
     """RMS distance to the other mesh over both overlaps' vertices, and the fraction within COINCIDE edges."""
     d = np.r_[first.distance[first.signed >= 0], second.distance[second.signed >= 0]]
@@ -319,14 +343,18 @@ def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, s
     return regime, ""
 
 
-def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
+def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Overlap:
     """Pose the second mesh in the first's frame (:func:`meshreg.mesh.align.align`) and find where they overlap at
     that pose. Regime "full" or "rigid" when the pose makes them coincide (RMS over the overlap below TIGHT edge
     lengths); "full" also when the pose is looser but already shows each mesh covering the other at the elastic
     tolerance (a noisy or smoothed copy: the warp would only confirm it); else "deformed": the warp of
-    :func:`warped_overlap` decides."""
+    :func:`warped_overlap` decides. With ``quick`` > 0, :func:`same_region` at that tolerance is tried first (no
+    feature search when it finds the meshes covering the same region)."""
     start = time.perf_counter()
     s1, s2 = Surface(first.vertices, first.faces), Surface(second.vertices, second.faces)
+    found = same_region(s1, s2, quick, start) if quick > 0 else None
+    if found is not None:
+        return found
     alignment = align(s1, s2)
     edge = max(s1.edge, alignment.scale * s2.edge)
     posed = s2.moved(alignment.matrix)
@@ -342,6 +370,47 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh) -> Overlap:
     return Overlap(
         regime, one, two, alignment, posed.vertices, edge, {"pose": rms}, coincide, slid, seconds, reason, s1
     )
+
+
+def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
+    """Regime "full" from a cheap look, or None when it does not show it (then :func:`rigid_overlap` runs the
+    feature search): at the principal-axes pose (:func:`meshreg.mesh.align.axes_pose`), at most ``tolerance`` of
+    QUICK_SAMPLE random points spread evenly over each mesh's area lie beyond the other's rim, and COINCIDE_ENOUGH
+    of the rest coincide with the other mesh. The sides of the returned overlap hold the samples' signed
+    distances, not every vertex's (a "full" overlap trims nothing).
+
+    Parameters
+    ----------
+    first, second : Surface
+        The two disks.
+    tolerance : float
+        ``Options.advanced.overlap_quick`` (at most FULL_TOLERANCE["rigid"]: the check only confirms "full").
+    start : float, optional
+        ``time.perf_counter()`` when the overlap search began (for :attr:`Overlap.seconds`).
+    """
+    start = time.perf_counter() if start is None else start
+    if not (first.area > 0 and second.area > 0):
+        return None
+    alignment = axes_pose(first, second)
+    if alignment is None:
+        return None
+    matrix, scale = alignment.matrix, alignment.scale
+    edge = max(first.edge, scale * second.edge)
+    points1, points2 = (area_sample(s, QUICK_SAMPLE, seed) for seed, s in enumerate((first, second)))
+    points2 = transform_points(matrix, points2)
+    signed1, distance1 = (
+        scale * d for d in exact_rim_distance(transform_points(np.linalg.inv(matrix), points1), second)
+    )
+    signed2, distance2 = exact_rim_distance(points2, first)
+    one, two = (_sampled_side(snapped(v, edge), d) for v, d in ((signed1, distance1), (signed2, distance2)))
+    rms, coincide = _coincidence(one, two, edge)
+    if coincide < COINCIDE_ENOUGH or min(one.fraction, two.fraction) < 1 - min(tolerance, FULL_TOLERANCE["rigid"]):
+        return None
+    posed = transform_points(matrix, second.vertices)
+    quick = Alignment(matrix, alignment.rms, alignment.scores, "principal axes (quick check)")
+    slid = slide(first, np.ones(len(first.vertices), dtype=bool), rms) / edge  # reported, as by rigid_overlap
+    seconds = time.perf_counter() - start
+    return Overlap("full", one, two, quick, posed, edge, {"pose": rms}, coincide, slid, seconds, "", first)
 
 
 def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray) -> Overlap:

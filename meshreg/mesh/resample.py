@@ -23,6 +23,26 @@ DEFAULT_ANTIALIAS = 3  # as Options.antialias
 
 
 @numba.njit(cache=True)
+def _node_range(nodes, low, high):
+    """First node >= low and first node > high of uniformly spaced increasing nodes (as np.searchsorted with
+    side left and right), from the spacing and then checked against the nodes themselves: no binary search."""
+    if not low <= high:  # NaN corners: no node
+        return 0, 0
+    last, step = nodes.shape[0] - 1, (nodes[-1] - nodes[0]) / max(nodes.shape[0] - 1, 1)
+    i0 = min(max(int(np.floor((low - nodes[0]) / step)), 0), last + 1)
+    while i0 > 0 and nodes[i0 - 1] >= low:
+        i0 -= 1
+    while i0 <= last and nodes[i0] < low:
+        i0 += 1
+    i1 = min(max(int(np.floor((high - nodes[0]) / step)), 0), last + 1)
+    while i1 > 0 and nodes[i1 - 1] > high:
+        i1 -= 1
+    while i1 <= last and nodes[i1] <= high:
+        i1 += 1
+    return i0, i1
+
+
+@numba.njit(cache=True)
 def _rasterize(uv, faces, values, r, t, out, hit, tol):
     m, n = r.shape[0], t.shape[0]
     for f in range(faces.shape[0]):
@@ -31,10 +51,8 @@ def _rasterize(uv, faces, values, r, t, out, hit, tol):
         det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
         if abs(det) < 1e-300:
             continue
-        i0 = np.searchsorted(r, min(ax, bx, cx) - tol)
-        i1 = np.searchsorted(r, max(ax, bx, cx) + tol, side="right")
-        j0 = np.searchsorted(t, min(ay, by, cy) - tol)
-        j1 = np.searchsorted(t, max(ay, by, cy) + tol, side="right")
+        i0, i1 = _node_range(r, min(ax, bx, cx) - tol, max(ax, bx, cx) + tol)
+        j0, j1 = _node_range(t, min(ay, by, cy) - tol, max(ay, by, cy) + tol)
         for i in range(i0, min(i1, m)):
             for j in range(j0, min(j1, n)):
                 px, py = r[i], t[j]

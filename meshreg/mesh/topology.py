@@ -12,6 +12,7 @@ from ..errors import InputError
 from ..files import MESH_SUFFIXES, existing_file
 from ..grid import check_scale, coordinates
 from .boundary import sharp_corners
+from .graph import edge_table, face_components, triangle_areas
 
 # a mesh whose vertices sit further from the origin than this many times its size has lost the digits of its
 # shape if it was stored in float32 (7 digits): its triangles collapse
@@ -97,23 +98,10 @@ class DiskMesh:
         return at
 
 
-def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area of each triangle (m,)."""
-    v, f = vertices, faces
-    return 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-
-
 def loop_segments(vertices: np.ndarray, loop) -> np.ndarray:
     """Length of each edge (b,) of a closed vertex loop, edge k running from loop[k] to loop[k + 1]."""
     loop = np.asarray(loop)
     return np.linalg.norm(vertices[np.roll(loop, -1)] - vertices[loop], axis=1)
-
-
-def _face_components(faces: np.ndarray, n: int) -> np.ndarray:
-    """Connected-component label of each face (m,), faces being connected through shared vertices."""
-    f = faces
-    adjacency = sp.csr_matrix((np.ones(2 * len(f)), (f[:, [0, 1]].ravel(), f[:, [1, 2]].ravel())), shape=(n, n))
-    return connected_components(adjacency, directed=False)[1][f[:, 0]]
 
 
 def _repeated_corner(faces: np.ndarray) -> np.ndarray:
@@ -122,12 +110,10 @@ def _repeated_corner(faces: np.ndarray) -> np.ndarray:
 
 
 def _edges(faces):
-    """Directed edges (3m, 2), the undirected edge keys, each directed edge's key index, and use counts."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
-    key = lo * (int(faces.max()) + 1) + hi  # one int64 per undirected edge: much faster than unique(axis=0)
-    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    return e, uniq, inverse.ravel(), counts
+    """Directed edges (3m, 2), the first directed edge of each undirected edge, each directed edge's undirected
+    edge id, use counts (:func:`~meshreg.mesh.graph.edge_table`), and the directed edges used once (the rims)."""
+    directed, first, inverse, counts = edge_table(faces)
+    return directed, first, inverse, counts, np.flatnonzero(counts[inverse] == 1)
 
 
 def prepare_disk(
@@ -186,15 +172,23 @@ def prepare_disk(
         edges = _edges(f)
         report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
     if cleanup:
-        f = _without_ears(v, f, report, edges)
-    used = np.unique(f)
+        f, edges = _unchanged_or_new(_without_ears(v, f, report, edges), f, edges)
+    used = _used_vertices(f, len(v))
     original = used[used < n]
     if len(original) < n:
         report.append(f"dropped {n - len(original)} unreferenced vertices")
     remap = np.full(len(v), -1)
     remap[used] = np.arange(len(used))
     v, f = v[used], remap[f]
-    return DiskMesh(v, f, np.array(_single_loop(v, f, _edges(f))), original, report, aliases)
+    edges = (remap[edges[0]], *edges[1:])  # an increasing renumbering keeps the edge table's order
+    return DiskMesh(v, f, np.array(_single_loop(v, f, edges)), original, report, aliases)
+
+
+def _used_vertices(faces: np.ndarray, n: int) -> np.ndarray:
+    """Ids (increasing) of the vertices, of n, that some face uses."""
+    used = np.zeros(n, dtype=bool)
+    used[faces.ravel()] = True
+    return np.flatnonzero(used)
 
 
 def _unchanged_or_new(new: np.ndarray, old: np.ndarray, edges: tuple) -> tuple[np.ndarray, tuple]:
@@ -286,8 +280,7 @@ def _unpinched(f: np.ndarray, cleanup: bool, report: list, edges: tuple) -> np.n
 
 def _largest_component(f: np.ndarray, n: int, cleanup: bool, report: list) -> np.ndarray:
     """The faces of the connected component with the most triangles (an error without ``cleanup``)."""
-    labels = _face_components(f, n)
-    ncomp = len(np.unique(labels))
+    labels, ncomp = face_components(f, n)
     if ncomp == 1:
         return f
     if not cleanup:
@@ -307,7 +300,7 @@ def _without_ears(v: np.ndarray, f: np.ndarray, report: list, edges: tuple) -> n
     the ears at those corners are kept (a square sheet's corner triangles are ears)."""
     if len(f) <= 1:
         return f
-    _, _, inverse, counts = edges
+    _, _, inverse, counts, _ = edges
     on_boundary = (counts[inverse] == 1).reshape(3, -1).T  # (m, 3): side k runs from corner k to corner k + 1
     ears = on_boundary.sum(axis=1) >= 2
     if not ears.any() or ears.all():
@@ -344,12 +337,12 @@ def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
     """For a mesh in several pieces held together only by coincident vertices (a triangle soup, seams of an
     exporter): each vertex's representative (the first vertex at its position) and the number of pieces, else
     (None, pieces). A mesh that is one piece is never welded: its coincident vertices may be a deliberate cut."""
-    pieces = len(np.unique(_face_components(f, len(v))))
+    pieces = face_components(f, len(v))[1]
     if pieces < 2:
         return None, pieces
     _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
     aliases = first[inverse.ravel()]
-    if np.all(aliases == np.arange(len(v))) or len(np.unique(_face_components(aliases[f], len(v)))) >= pieces:
+    if np.all(aliases == np.arange(len(v))) or face_components(aliases[f], len(v))[1] >= pieces:
         return None, pieces
     return aliases, pieces
 
@@ -375,11 +368,10 @@ def _orientation_flips(faces, edges) -> np.ndarray:
     """Which triangles (m,) to reverse so that every interior edge is crossed in opposite directions by its
     two triangles (a consistent winding; per component, the orientation of most triangles wins). ``edges``
     is :func:`_edges` of the faces."""
-    e, _, inverse, _ = edges
+    e, first, inverse, _, _ = edges
     m = len(faces)
-    order = np.argsort(inverse, kind="stable")
-    pair = np.flatnonzero(inverse[order][1:] == inverse[order][:-1])
-    a, b = order[pair], order[pair + 1]
+    b = np.flatnonzero(first[inverse] != np.arange(len(e)))  # the second directed edge of each interior edge
+    a = first[inverse[b]]
     same = e[a, 0] == e[b, 0]  # both triangles run the shared edge the same way: one must flip
     if not same.any():
         return np.zeros(m, dtype=bool)
@@ -424,15 +416,15 @@ def boundary_sizes(faces) -> list[int]:
 def boundary_edges(faces: np.ndarray, edges: tuple | None = None) -> np.ndarray:
     """Directed edges (b, 2) used by one triangle only (the rim and the rims of holes), in the faces' order
     (``edges``: :func:`_edges` of the faces, when known)."""
-    e, _, inverse, counts = _edges(faces) if edges is None else edges
-    return e[counts[inverse] == 1]
+    e, _, _, _, rim = _edges(faces) if edges is None else edges
+    return e[rim]
 
 
 def unique_edges(faces: np.ndarray) -> np.ndarray:
     """Undirected edges (e, 2) of a triangle mesh, each once as (lower id, higher id), sorted."""
-    _, uniq, _, _ = _edges(faces)
-    base = int(faces.max()) + 1
-    return np.stack([uniq // base, uniq % base], axis=1)
+    directed, first, _, _, _ = _edges(faces)
+    edges = np.sort(directed[first], axis=1)
+    return edges[np.lexsort((edges[:, 1], edges[:, 0]))]
 
 
 def _boundary_loops(faces, edges: tuple | None = None) -> list[list[int]]:

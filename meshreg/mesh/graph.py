@@ -1,0 +1,127 @@
+"""Linear-time graph kernels of triangle meshes (numba): edge table, connected components, triangle areas.
+
+Sorting 3m edge keys (``np.unique``) or building an n x n sparse adjacency for ``connected_components`` costs
+O(m log m) and several copies of the mesh; bucketing edges by their lower vertex and a union-find over the faces
+cost O(n + m) and no more than a few int64 arrays. On a 1M-triangle mesh the checks of
+:func:`~meshreg.mesh.topology.prepare_disk` went from about 3 s to well under one.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def _edge_table(faces: np.ndarray, n: int):
+    """Directed edges (3m, 2), the undirected edge id of each (bucketed by its lower vertex: O(n + m)), the first
+    directed edge of each undirected edge, and how many directed edges use each."""
+    m = faces.shape[0]
+    size = 3 * m
+    directed = np.empty((size, 2), np.int64)
+    start = np.zeros(n + 1, np.int64)
+    for k in range(size):
+        a, b = faces[k % m, k // m], faces[k % m, (k // m + 1) % 3]
+        directed[k, 0], directed[k, 1] = a, b
+        start[min(a, b) + 1] += 1
+    for a in range(n):
+        start[a + 1] += start[a]
+    order = np.empty(size, np.int64)
+    fill = start[:-1].copy()
+    for k in range(size):
+        lo = min(directed[k, 0], directed[k, 1])
+        order[fill[lo]] = k
+        fill[lo] += 1
+    mark = np.full(n, -1, np.int64)
+    inverse = np.empty(size, np.int64)
+    first = np.empty(size, np.int64)
+    counts = np.zeros(size, np.int64)
+    edges = 0
+    for a in range(n):
+        for p in range(start[a], start[a + 1]):
+            k = order[p]
+            hi = max(directed[k, 0], directed[k, 1])
+            if mark[hi] < 0:
+                mark[hi] = edges
+                first[edges] = k
+                edges += 1
+            inverse[k] = mark[hi]
+            counts[mark[hi]] += 1
+        for p in range(start[a], start[a + 1]):
+            k = order[p]
+            mark[max(directed[k, 0], directed[k, 1])] = -1
+    return directed, inverse, first[:edges], counts[:edges]
+
+
+def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The edges of a triangle mesh in O(n + m).
+
+    Parameters
+    ----------
+    faces : ndarray (m, 3), int64
+
+    Returns
+    -------
+    directed : ndarray (3m, 2)
+        Directed edges, side k of every face in block k (side k runs from corner k to corner k + 1).
+    first : ndarray (e,)
+        Index in ``directed`` of the first directed edge of each undirected edge.
+    inverse : ndarray (3m,)
+        Undirected edge id of each directed edge.
+    counts : ndarray (e,)
+        Directed edges (triangles) using each undirected edge: 1 on the boundary, 2 inside, more when non-manifold.
+    """
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    directed, inverse, first, counts = _edge_table(faces, int(faces.max()) + 1 if len(faces) else 0)
+    return directed, first, inverse, counts
+
+
+@numba.njit(cache=True)
+def _root(parent: np.ndarray, a: int) -> int:
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]  # path halving
+        a = parent[a]
+    return a
+
+
+@numba.njit(cache=True)
+def _components(faces: np.ndarray, n: int):
+    parent = np.arange(n)
+    for f in range(faces.shape[0]):
+        for k in (1, 2):
+            a, b = _root(parent, faces[f, 0]), _root(parent, faces[f, k])
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+    label = np.full(n, -1, np.int64)
+    labels = np.empty(faces.shape[0], np.int64)
+    count = 0
+    for f in range(faces.shape[0]):
+        r = _root(parent, faces[f, 0])
+        if label[r] < 0:
+            label[r] = count
+            count += 1
+        labels[f] = label[r]
+    return labels, count
+
+
+def face_components(faces: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+    """Connected-component label (m,) of each face, faces being connected through shared vertices, numbered 0, 1,
+    .. in the order of their first face, and the number of components (a union-find over ``n`` vertices)."""
+    return _components(np.ascontiguousarray(faces, dtype=np.int64), n)
+
+
+@numba.njit(cache=True)
+def _areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    out = np.empty(f.shape[0])
+    for t in range(f.shape[0]):
+        a, b, c = f[t, 0], f[t, 1], f[t, 2]
+        x1, y1, z1 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        x2, y2, z2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+        out[t] = 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
+    return out
+
+
+def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area of each triangle (m,) of vertices (n, 3) and faces (m, 3)."""
+    return _areas(np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64))

@@ -1,0 +1,94 @@
+"""The mesh front end's linear-time kernels against their plain numpy/scipy definitions."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import connected_components
+
+from meshreg.mesh.graph import edge_table, face_components, triangle_areas
+from meshreg.mesh.harmonic import HarmonicMap, factorize, laplacian_blocks
+from meshreg.mesh.resample import _node_range
+from meshreg.mesh.samples import random_disk_mesh
+from meshreg.mesh.topology import prepare_disk, unique_edges
+from meshreg.samples import bump
+
+
+def _soup(seed: int, n: int = 40, m: int = 120) -> np.ndarray:
+    """Random triangles over n vertices (non-manifold edges, isolated pieces and all)."""
+    rng = np.random.default_rng(seed)
+    faces = np.array([rng.choice(n, 3, replace=False) for _ in range(m)])
+    return np.vstack([faces, faces[:5, ::-1]])  # some edges used three or four times
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_edge_table_matches_sorting(seed):
+    faces = _soup(seed)
+    directed, first, inverse, counts = edge_table(faces)
+    assert np.array_equal(directed[: len(faces)], faces[:, [0, 1]])
+    keys = np.sort(directed, axis=1) @ [1000, 1]
+    uniq, expected_inverse, expected_counts = np.unique(keys, return_inverse=True, return_counts=True)
+    assert len(first) == len(uniq)
+    assert np.array_equal(keys[first][inverse], keys)  # each directed edge's id names its undirected edge
+    assert np.array_equal(np.sort(counts), np.sort(expected_counts))
+    assert np.array_equal(counts[inverse], expected_counts[expected_inverse])
+    assert np.all(first[inverse] <= np.arange(len(keys)))  # the first directed edge comes first
+    assert np.array_equal(unique_edges(faces), np.stack([uniq // 1000, uniq % 1000], axis=1))
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_face_components_match_scipy(seed):
+    faces = _soup(seed, n=200, m=60)
+    labels, count = face_components(faces, 200)
+    graph = sp.coo_matrix((np.ones(2 * len(faces)), (faces[:, [0, 1]].ravel(), faces[:, [1, 2]].ravel())), (200, 200))
+    expected = connected_components(graph, directed=False)[1][faces[:, 0]]
+    assert count == len(np.unique(expected))
+    assert np.array_equal(labels[:, None] == labels[None, :], expected[:, None] == expected[None, :])
+
+
+def test_triangle_areas():
+    v = np.array([[0.0, 0, 0], [2, 0, 0], [0, 3, 0], [0, 0, 4]])
+    f = np.array([[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 0, 1]])
+    assert np.allclose(triangle_areas(v, f), [3.0, 4.0, 0.5 * np.linalg.norm(np.cross([-2, 3, 0], [-2, 0, 4])), 0])
+
+
+@pytest.mark.parametrize("weights", ["mean-value", "cotangent"])
+def test_laplacian_blocks_match_dense_definition(weights):
+    v, f, _ = random_disk_mesh(bump(), 60, seed=1)
+    disk = prepare_disk(v, f)
+    interior = HarmonicMap(disk, weights).interior
+    block, coupling = laplacian_blocks(disk, interior, weights)
+    n = len(disk.vertices)
+    w = np.zeros((n, n))
+    for a, b, c in disk.faces:
+        for i, j, k in ((a, b, c), (b, c, a), (c, a, b)):
+            e1, e2 = disk.vertices[j] - disk.vertices[i], disk.vertices[k] - disk.vertices[i]
+            angle = np.arccos(e1 @ e2 / np.linalg.norm(e1) / np.linalg.norm(e2))
+            if weights == "mean-value":
+                w[i, j] += np.tan(angle / 2) / np.linalg.norm(e1)
+                w[i, k] += np.tan(angle / 2) / np.linalg.norm(e2)
+            else:
+                w[j, k] += 0.5 / np.tan(angle)
+                w[k, j] += 0.5 / np.tan(angle)
+    lap = np.diag(w.sum(axis=1)) - w
+    assert np.allclose(block.toarray(), lap[np.ix_(interior, interior)], rtol=1e-12, atol=1e-12)
+    assert np.allclose(coupling.toarray(), lap[np.ix_(interior, disk.boundary)], rtol=1e-12, atol=1e-12)
+
+
+def test_factorize_solves_in_the_given_order():
+    v, f, _ = random_disk_mesh(bump(), 300, seed=2)
+    disk = prepare_disk(v, f)
+    block, _ = laplacian_blocks(disk, HarmonicMap(disk).interior, "mean-value")
+    rhs = np.random.default_rng(0).standard_normal((block.shape[0], 2))
+    assert np.allclose(factorize(block).solve(rhs), spla.spsolve(block, rhs), rtol=1e-10, atol=1e-12)
+    assert np.allclose(factorize(block).solve(rhs[:, 0]), spla.spsolve(block, rhs[:, 0]), rtol=1e-10, atol=1e-12)
+
+
+def test_node_range_is_a_binary_search():
+    nodes = np.linspace(0, 1, 31)
+    rng = np.random.default_rng(0)
+    points = np.r_[rng.uniform(-0.2, 1.2, 300), nodes, np.nextafter(nodes, 2), np.nextafter(nodes, -2)]
+    for low in points:
+        for high in (low, low + 0.07, np.nextafter(low, 2)):
+            assert _node_range(nodes, low, high) == (np.searchsorted(nodes, low), np.searchsorted(nodes, high, "right"))
+    assert _node_range(nodes, np.nan, 0.5)[1] <= _node_range(nodes, np.nan, 0.5)[0]  # NaN corners: no node
