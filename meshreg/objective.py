@@ -57,16 +57,45 @@ class Objective:
         self.r, self.t = self.first.r, self.first.t
         self.weights = cell_weights(self.r, self.t)
         self.q1 = shape_function(self.first.points, self.r, self.t)
-        self.c2 = self.second.interpolator
         self.identity = identity(self.r, self.t)
+        self._last: dict = {}  # the last h the second surface was evaluated at, and what was computed there
+
+    def c2(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The second surface at h and its partial derivatives there: c2(h), dc2/du(h), dc2/dv(h), each (M, N, 3)
+        (read-only)."""
+        last = self._at(h, derivatives=True)
+        return last["points"], last["du"], last["dv"]
+
+    def _at(self, h: np.ndarray, derivatives: bool = False) -> dict:
+        """c2(h), with ``derivatives`` also dc2/du and dc2/dv at h, and a slot for (q2, h), all read-only.
+
+        The descent evaluates the second surface at one h several times (the energy of an accepted step, its stretch
+        test, the next linearization, the Kabsch step that follows): each is a bicubic evaluation at every node. The
+        last h and its values are kept, so that such repeats cost one comparison of h; the numbers are the same.
+        """
+        last = self._last
+        if not (last and np.array_equal(last["h"], h) and (last["du"] is not None or not derivatives)):
+            if derivatives:
+                points, du, dv = self.second.interpolator(h[..., 0], h[..., 1])
+            else:
+                points, du, dv = self.second.at(h), None, None
+            for array in (points, du, dv):
+                if array is not None:
+                    array.flags.writeable = False
+            self._last = last = {"h": h.copy(), "points": points, "du": du, "dv": dv, "q2": None}
+        return last
 
     def points(self, h: np.ndarray) -> np.ndarray:
-        """The second surface at h: c2(h(r_i, t_j)), shape (M, N, 3)."""
-        return self.second.at(h)
+        """The second surface at h: c2(h(r_i, t_j)), shape (M, N, 3) (read-only)."""
+        return self._at(h)["points"]
 
     def q2(self, h: np.ndarray) -> np.ndarray:
-        """(q2, h), the shape function of c2 o h, shape (M-1, N-1, 3)."""
-        return shape_function(self.points(h), self.r, self.t)
+        """(q2, h), the shape function of c2 o h, shape (M-1, N-1, 3) (read-only)."""
+        last = self._at(h)
+        if last["q2"] is None:
+            last["q2"] = shape_function(last["points"], self.r, self.t)
+            last["q2"].flags.writeable = False
+        return last["q2"]
 
     def energy(self, rotation: np.ndarray, h: np.ndarray) -> float:
         """E(h, R)."""
@@ -95,7 +124,7 @@ class Objective:
         the first, both are large; for two samplings of one shape the exact h may have steep slopes, but the second
         ratio stays near 1.
         """
-        _, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
+        _, dc_du, dc_dv = self.c2(h)
         worst = 0.0
         for axis, lengths, spacing in zip(
             (0, 1), self.edge_lengths, np.ix_(np.diff(self.r), np.diff(self.t)), strict=True
@@ -123,16 +152,14 @@ class Objective:
 
     def evaluate(self, rotation: np.ndarray, h: np.ndarray) -> tuple[float, Residual]:
         """E(h, R) and the coordinate residual, from one evaluation of the second surface at h."""
-        points = self.points(h)
-        e = energy(self.q1, shape_function(points, self.r, self.t), self.weights, rotation)
-        return e, coordinate_residual(self.first.points @ rotation.T, points, self.node_weights)
+        e = energy(self.q1, self.q2(h), self.weights, rotation)
+        return e, coordinate_residual(self.first.points @ rotation.T, self.points(h), self.node_weights)
 
     def judge(self, h: np.ndarray) -> tuple[np.ndarray, float, Residual]:
         """For h: the best R (Kabsch), E(h, R) and the residual, from one evaluation of the second surface at h."""
-        points = self.points(h)
-        q2 = shape_function(points, self.r, self.t)
+        q2 = self.q2(h)
         rotation = kabsch(cross_covariance(self.q1, q2, self.weights))
-        residual = coordinate_residual(self.first.points @ rotation.T, points, self.node_weights)
+        residual = coordinate_residual(self.first.points @ rotation.T, self.points(h), self.node_weights)
         return rotation, energy(self.q1, q2, self.weights, rotation), residual
 
     def best_rotation_covariance(self, h: np.ndarray) -> np.ndarray:
@@ -158,7 +185,7 @@ class Objective:
         E : float
         G : ndarray, shape (M, N, 2)
         """
-        pts, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
+        pts, dc_du, dc_dv = self.c2(h)
         e, g_pts = energy_gradient_points(self.q1 @ rotation.T, pts, self.weights)
         d_dr, d_dt = _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt)
         grad = np.stack([np.sum(g_pts * d_dr, axis=-1), np.sum(g_pts * d_dt, axis=-1)], axis=-1)
@@ -182,7 +209,7 @@ class Objective:
         jac : CellJacobian
             The (3 (M-1) (N-1), 2 M N) Jacobian, kept as per-cell blocks.
         """
-        pts, dc_du, dc_dv = self.c2(h[..., 0], h[..., 1])
+        pts, dc_du, dc_dv = self.c2(h)
         d_dr, d_dt = _composite_derivatives(dc_du, dc_dv, dh_dr, dh_dt)
         q, blocks = shape_function_blocks(pts, self.weights, np.stack([d_dr, d_dt], axis=-1))
         sw = np.sqrt(self.weights)[..., None]
