@@ -18,6 +18,7 @@ Bernal & Lawrence, Section 4 (the basis B of Riseth).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.interpolate import BSpline
@@ -78,6 +79,40 @@ class TensorBasis:
             self._matrix = self._build_matrix()
         return self._matrix
 
+    def normal_matrix(self, gram: sp.csr_matrix, n: int) -> np.ndarray:
+        """W^T G W, dense (size, size), for the fields W (:meth:`matrix`) and a matrix G on the node values of an
+        M x n grid that couples each node only with its 8 neighbours (J^T J of the cell residuals,
+        :meth:`meshreg.cell_jacobian.CellJacobian.gram`).
+
+        The fields are separable, so the sum over pairs of nodes is done one axis at a time, over the non-zero
+        entries of the factors (:func:`_tensor_gram`): for the cubic B-spline bases about 10 times faster than the
+        sparse products ``W^T (G W)``, the same matrix to rounding.
+        """
+        factors = [(self.a1, self.b1), (self.a2, self.b2)]
+        offsets = np.cumsum([0, self.shape1[0] * self.shape1[1], self.shape2[0] * self.shape2[1]])
+        out = np.zeros((self.size, self.size))
+        for c, (a, b) in enumerate(factors):
+            for d, (a2, b2) in enumerate(factors):
+                if d < c:
+                    continue
+                block = out[offsets[c] : offsets[c + 1], offsets[d] : offsets[d + 1]]
+                _tensor_gram(
+                    gram.data,
+                    gram.indices,
+                    gram.indptr,
+                    n,
+                    c,
+                    d,
+                    *_nonzero(a),
+                    *_nonzero(b),
+                    *_nonzero(a2),
+                    *_nonzero(b2),
+                    block,
+                )
+        upper = out[: offsets[1], offsets[1] :]
+        out[offsets[1] :, : offsets[1]] = upper.T
+        return out
+
     def _build_matrix(self):
         m, n = self.a1.shape[0], self.b1.shape[0]
         if self.sparse:
@@ -93,6 +128,59 @@ class TensorBasis:
         out[:, 0, :n1] = np.kron(self.a1, self.b1)
         out[:, 1, n1:] = np.kron(self.a2, self.b2)
         return out.reshape(2 * m * n, self.size)
+
+
+def _nonzero(factor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A factor (nodes, functions) and, per node, the range [lo, hi) of functions not zero there."""
+    nonzero = factor != 0.0
+    lo = np.where(nonzero.any(axis=1), nonzero.argmax(axis=1), 0)
+    hi = np.where(nonzero.any(axis=1), factor.shape[1] - nonzero[:, ::-1].argmax(axis=1), 0)
+    return np.ascontiguousarray(factor), lo.astype(np.int64), hi.astype(np.int64)
+
+
+@numba.njit(cache=True)
+def _tensor_gram(data, indices, indptr, n, c, d, a, alo, ahi, b, blo, bhi, a2, a2lo, a2hi, b2, b2lo, b2hi, out):
+    """out[(p, s), (p2, s2)] += sum over entries G[(i, j, c), (i2, j2, d)] of G a[i, p] b[j, s] a2[i2, p2] b2[j2, s2].
+
+    For each node row i and neighbour row i2 the sum over j is done first (into x, (s, s2)), then spread over
+    (p, p2): the cost is that of the non-zero factor entries, not of every pair of fields.
+    """
+    m = len(indptr) // (2 * n)
+    ns, ns2 = b.shape[1], b2.shape[1]
+    x = np.zeros((3, ns, ns2))
+    lo = np.empty((3, ns), np.int64)
+    hi = np.empty((3, ns), np.int64)
+    for i in range(m):
+        x[:] = 0.0
+        lo[:] = ns2
+        hi[:] = 0
+        for j in range(n):
+            row = 2 * (i * n + j) + c
+            for k in range(indptr[row], indptr[row + 1]):
+                col = indices[k]
+                if col % 2 != d:
+                    continue
+                node = col // 2
+                i2, j2 = node // n, node % n
+                g = data[k]
+                di = i2 - i + 1
+                for s in range(blo[j], bhi[j]):
+                    gb = g * b[j, s]
+                    lo[di, s] = min(lo[di, s], b2lo[j2])
+                    hi[di, s] = max(hi[di, s], b2hi[j2])
+                    for s2 in range(b2lo[j2], b2hi[j2]):
+                        x[di, s, s2] += gb * b2[j2, s2]
+        for di in range(3):
+            i2 = i + di - 1
+            if i2 < 0 or i2 >= m:
+                continue
+            for p in range(alo[i], ahi[i]):
+                for p2 in range(a2lo[i2], a2hi[i2]):
+                    w = a[i, p] * a2[i2, p2]
+                    for s in range(ns):
+                        base = p * ns
+                        for s2 in range(lo[di, s], hi[di, s]):
+                            out[base + s, p2 * ns2 + s2] += w * x[di, s, s2]
 
 
 def _sines(x: np.ndarray, kl: int):
