@@ -250,7 +250,7 @@ def _normal_equations(node_jac, basis: TensorBasis, rot_jac: np.ndarray, res: np
     """
     fields, selection = basis.matrix(), basis.selection
     if not sp.issparse(fields):
-        jac = node_jac.times_dense(fields, rot_jac)
+        jac = node_jac.times_dense(fields, rot_jac, basis.row_ranges())
         return jac.T @ jac, -(jac.T @ res)
     if selection is not None and len(selection) + 3 > DENSE_LIMIT:
         system = NodeSystem(node_jac, rot_jac, res, selection)

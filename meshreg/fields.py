@@ -18,10 +18,33 @@ Bernal & Lawrence, Section 4 (the basis B of Riseth).
 
 from __future__ import annotations
 
+from collections import OrderedDict
+from functools import wraps
+
 import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.interpolate import BSpline
+
+BASIS_CACHE = 8  # bases kept per process, by kind, size and grid (every start and level asks for the same few)
+
+
+def _kept(make):
+    """``make(*args)`` (sizes and the partitions r, t) with its last BASIS_CACHE results kept: a basis and its field
+    matrix are built once per process and grid, not once per descent round (a basis is not modified once made)."""
+    kept = OrderedDict()
+
+    @wraps(make)
+    def cached(*args):
+        key = tuple(a.tobytes() if isinstance(a, np.ndarray) else a for a in args)
+        if key not in kept:
+            kept[key] = make(*args)
+            if len(kept) > BASIS_CACHE:
+                kept.popitem(last=False)
+        kept.move_to_end(key)
+        return kept[key]
+
+    return cached
 
 
 class TensorBasis:
@@ -43,6 +66,7 @@ class TensorBasis:
         self.sparse = sparse
         self.selection = None  # set when every field moves one node value: the rows of matrix() it keeps
         self._matrix = None
+        self._row_ranges = None
         self.shape1 = (self.a1.shape[1], self.b1.shape[1])
         self.shape2 = (self.a2.shape[1], self.b2.shape[1])
         self.size = self.shape1[0] * self.shape1[1] + self.shape2[0] * self.shape2[1]
@@ -78,6 +102,15 @@ class TensorBasis:
         if self._matrix is None:
             self._matrix = self._build_matrix()
         return self._matrix
+
+    def row_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per row of :meth:`matrix` (a node value), the range [lo, hi) of the fields that may be non-zero there: the
+        fields of its component (the first and the second components' fields are separate columns)."""
+        if self._row_ranges is None:
+            m, n = self.a1.shape[0], self.b1.shape[0]
+            n1 = self.shape1[0] * self.shape1[1]
+            self._row_ranges = (np.tile([0, n1], m * n), np.tile([n1, self.size], m * n))
+        return self._row_ranges
 
     def normal_matrix(self, gram: sp.csr_matrix, n: int) -> np.ndarray:
         """W^T G W, dense (size, size), for the fields W (:meth:`matrix`) and a matrix G on the node values of an
@@ -196,6 +229,7 @@ def _fourier(x: np.ndarray, kl: int):
     return values, derivs
 
 
+@_kept
 def riseth_basis(kl: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
     """The paper's basis truncated at KL: first components sqrt2 sin(pi k r) psi_l(t), second sqrt2 sin(pi k t)
     psi_l(r).
@@ -225,6 +259,7 @@ def _bsplines(x: np.ndarray, n: int):
     return np.nan_to_num(spline(x)), np.nan_to_num(spline.derivative()(x))
 
 
+@_kept
 def bspline_basis(n: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
     """Cubic B-spline fields with n functions per axis (n >= 4): 2 n (n - 2) fields.
 
@@ -239,6 +274,7 @@ def bspline_basis(n: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
     return TensorBasis((br[:, inner], dbr[:, inner], bt, dbt), (br, dbr, bt[:, inner], dbt[:, inner]), sparse=True)
 
 
+@_kept
 def node_basis(r: np.ndarray, t: np.ndarray) -> TensorBasis:
     """One field per free node value: moving one node of h along r (inner r nodes) or t (inner t nodes).
 
