@@ -10,19 +10,27 @@ the de Boor-Cox recursion: 1.4-1.9x faster, the same values to 2e-15 relative.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from math import factorial
 
 import numba
 import numpy as np
 from scipy.interpolate import BSpline, RectBivariateSpline
 
+SPAN_CACHE = 16  # knot vectors whose span polynomials are kept (per grid axis: the surfaces', h's, the coarse grids')
 
-def _span_polynomials(knots: np.ndarray, k: int, ncoef: int) -> np.ndarray:
+
+@lru_cache(maxsize=SPAN_CACHE)
+def _span_polynomials(knot_bytes: bytes, k: int) -> np.ndarray:
     """The k + 1 B-splines of degree k that are not zero on each knot span, as polynomials in (x - left end).
 
-    Returns (ncoef - k, k + 1, k + 1): entry [span - k, d, a] is the coefficient of (x - knots[span])^d of the
-    B-spline span - k + a, from its derivatives at the span's left end (scipy's ``BSpline``, right limits).
+    Returns (ncoef - k, k + 1, k + 1) for the knots (given as the bytes of a float64 array, so that the result is
+    kept per knot vector: every interpolant on one grid has the same knots): entry [span - k, d, a] is the
+    coefficient of (x - knots[span])^d of the B-spline span - k + a, from its derivatives at the span's left end
+    (scipy's ``BSpline``, right limits). Read-only.
     """
+    knots = np.frombuffer(knot_bytes)
+    ncoef = len(knots) - k - 1
     ends = knots[k:ncoef]
     splines = BSpline(knots, np.eye(ncoef), k)
     out = np.empty((ncoef - k, k + 1, k + 1))
@@ -30,6 +38,7 @@ def _span_polynomials(knots: np.ndarray, k: int, ncoef: int) -> np.ndarray:
     for d in range(k + 1):
         values = (splines.derivative(d) if d else splines)(ends) / factorial(d)
         out[:, d, :] = np.take_along_axis(values, columns, axis=1)
+    out.flags.writeable = False
     return out
 
 
@@ -113,8 +122,8 @@ class GridInterpolator:
         self.tx = np.ascontiguousarray(tx)
         self.ty = np.ascontiguousarray(ty)
         self.coef = np.ascontiguousarray(np.stack(coefs, axis=-1))
-        self.px = _span_polynomials(self.tx, self.kx, self.coef.shape[0])
-        self.py = _span_polynomials(self.ty, self.ky, self.coef.shape[1])
+        self.px = _span_polynomials(self.tx.tobytes(), self.kx)
+        self.py = _span_polynomials(self.ty.tobytes(), self.ky)
 
     def __call__(self, u: np.ndarray, v: np.ndarray):
         """Values and partial derivatives at points (u, v) (clamped to the square).
