@@ -1,9 +1,11 @@
 """Throughput of distance matrices: pairs per second for a collection of 20 surfaces, locally with 1 and 2
 processes and on a Dask cluster of 2 worker processes started on loopback.
 
-    python benchmarks/bench_matrix.py [--grids 61 101] [--surfaces 20]
+    python benchmarks/bench_matrix.py [--grids 61 101] [--surfaces 20] [--backends 1 2 dask]
 
-Prints a table (grid, backend, pairs, seconds, pairs/s, median E). Every run computes all N(N-1)/2 pairs.
+Prints a table (grid, backend, pairs, seconds, pairs/s, pairs/s per worker, mean seconds of a pair in its worker,
+median E). Every run computes all N(N-1)/2 pairs. Pairs/s per worker near 1 / (mean seconds of a pair) says the
+workers were kept busy (no time lost to start-up, pickling or waiting).
 """
 
 import argparse
@@ -28,6 +30,7 @@ def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--grids", type=int, nargs="+", default=[61, 101])
     parser.add_argument("--surfaces", type=int, default=20)
+    parser.add_argument("--backends", nargs="+", default=["1", "2", "dask"], help="local process counts and/or dask")
     args = parser.parse_args()
     from distributed import Client, LocalCluster
 
@@ -36,12 +39,17 @@ def main():
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}"
     )
-    print("| grid | backend | pairs | seconds | pairs/s | median E |")
-    print("|---|---|---|---|---|---|")
+    print("| grid | backend | pairs | seconds | pairs/s | pairs/s per worker | s per pair in its worker | median E |")
+    print("|---|---|---|---|---|---|---|---|")
+    runs = [
+        (f"local, {b} process{'es' if int(b) > 1 else ''}", int(b), dict(jobs=int(b)))
+        if b != "dask"
+        else ("Dask, 2 workers", 2, None)
+        for b in args.backends
+    ]
     for size in args.grids:
         grids = collection(args.surfaces, size)
-        runs = [("local, 1 process", dict(jobs=1)), ("local, 2 processes", dict(jobs=2))]
-        for label, kwargs in runs + [("Dask, 2 workers", None)]:
+        for label, workers, kwargs in runs:
             tic = time.perf_counter()
             if kwargs is None:
                 with (
@@ -56,9 +64,11 @@ def main():
                 result = meshreg.distance_matrix(grids, **kwargs)
             seconds = time.perf_counter() - tic
             pairs = len(grids) * (len(grids) - 1) // 2
-            energy = np.median(result.energy[np.triu_indices(len(grids), 1)])
+            upper = np.triu_indices(len(grids), 1)
+            energy, each = np.median(result.energy[upper]), np.mean(result.seconds[upper])
             print(
-                f"| {size}x{size} | {label} | {pairs} | {seconds:.1f} | {pairs / seconds:.2f} | {energy:.3g} |",
+                f"| {size}x{size} | {label} | {pairs} | {seconds:.1f} | {pairs / seconds:.2f} | "
+                f"{pairs / seconds / workers:.2f} | {each:.2f} | {energy:.3g} |",
                 flush=True,
             )
 

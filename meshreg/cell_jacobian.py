@@ -82,8 +82,9 @@ def _gram_data(blocks, m, n, indptr):
 
 
 @numba.njit(cache=True)
-def _times_dense(blocks, cols, fields, extra, out):
-    """out = [J @ fields, extra] for J given by per-cell blocks (cells, 3, 8) on the unknowns ``cols`` (cells, 8)."""
+def _times_dense(blocks, cols, fields, lo, hi, extra, out):
+    """out = [J @ fields, extra] for J given by per-cell blocks (cells, 3, 8) on the unknowns ``cols`` (cells, 8);
+    row u of ``fields`` is zero outside the columns [lo[u], hi[u])."""
     nf = fields.shape[1]
     for cell in range(blocks.shape[0]):
         for k in range(3):
@@ -96,7 +97,7 @@ def _times_dense(blocks, cols, fields, extra, out):
                 w = blocks[cell, k, a]
                 if w != 0.0:
                     source = cols[cell, a]
-                    for f in range(nf):
+                    for f in range(lo[source], hi[source]):
                         out[row, f] += w * fields[source, f]
 
 
@@ -149,10 +150,16 @@ class CellJacobian:
         cols = np.repeat(self.pattern.cols, 3, axis=0).ravel()
         return sp.csr_matrix((self.blocks.ravel(), (rows, cols)), shape=self.shape)
 
-    def times_dense(self, fields: np.ndarray, extra: np.ndarray) -> np.ndarray:
-        """``[J @ fields, extra]``, shape (3 cells, F + E), for dense fields (2 M N, F), extra columns (3 cells, E)."""
+    def times_dense(self, fields: np.ndarray, extra: np.ndarray, ranges=None) -> np.ndarray:
+        """``[J @ fields, extra]``, shape (3 cells, F + E), for dense fields (2 M N, F), extra columns (3 cells, E);
+        ``ranges`` (lo, hi), optional: row u of ``fields`` is zero outside the columns [lo[u], hi[u]) (which are
+        then skipped)."""
         out = np.empty((self.shape[0], fields.shape[1] + extra.shape[1]))
-        _times_dense(self.blocks, self.pattern.cols, np.ascontiguousarray(fields), np.ascontiguousarray(extra), out)
+        if ranges is None:
+            ranges = (np.zeros(len(fields), np.int64), np.full(len(fields), fields.shape[1], np.int64))
+        lo, hi = (np.asarray(x, dtype=np.int64) for x in ranges)
+        fields, extra = np.ascontiguousarray(fields), np.ascontiguousarray(extra)
+        _times_dense(self.blocks, self.pattern.cols, fields, lo, hi, extra, out)
         return out
 
     def rmatvec(self, x: np.ndarray) -> np.ndarray:

@@ -208,7 +208,7 @@ def gauss_newton(
             _, dh_dr, dh_dt = interp(ident[..., 0], ident[..., 1])
         res, node_jac = objective.linearize(state.rotation, state.h, dh_dr, dh_dt)
         rot_jac = objective.rotation_jacobian(state.rotation)
-        normal, rhs = _normal_equations(node_jac, fields, rot_jac, res, basis.selection)
+        normal, rhs = _normal_equations(node_jac, basis, rot_jac, res)
         if 2 * np.linalg.norm(rhs) < params.grad_tol:
             break
         diag = normal.diagonal()
@@ -275,16 +275,18 @@ def _held(objective: Objective, h: np.ndarray, candidate: np.ndarray, max_stretc
         candidate = np.where(moving[..., None], candidate, h)
 
 
-def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, selection=None):
-    """J^T J and -J^T res for J = [node_jac @ fields, rot_jac] (node_jac: :class:`CellJacobian`).
+def _normal_equations(node_jac, basis: TensorBasis, rot_jac: np.ndarray, res: np.ndarray):
+    """J^T J and -J^T res for J = [node_jac @ fields, rot_jac] (node_jac: :class:`CellJacobian`; fields: the columns
+    of ``basis.matrix()``).
 
     For local (sparse) fields J is not formed: J^T J goes through node_jac^T node_jac, assembled from
-    per-cell blocks on a cached pattern. For the node basis (``selection``: fields = columns of the identity)
-    beyond ``DENSE_LIMIT`` unknowns it is a :class:`~meshreg.normal_system.NodeSystem` (solved by CG), whose
-    right-hand side is on all node values.
+    per-cell blocks on a cached pattern, then onto the fields (:meth:`~meshreg.fields.TensorBasis.normal_matrix`).
+    For the node basis (``selection``: fields = columns of the identity) beyond ``DENSE_LIMIT`` unknowns it is a
+    :class:`~meshreg.normal_system.NodeSystem` (solved by CG), whose right-hand side is on all node values.
     """
+    fields, selection = basis.matrix(), basis.selection
     if not sp.issparse(fields):
-        jac = node_jac.times_dense(fields, rot_jac)
+        jac = node_jac.times_dense(fields, rot_jac, basis.row_ranges())
         return jac.T @ jac, -(jac.T @ res)
     if selection is not None and len(selection) + 3 > DENSE_LIMIT:
         system = NodeSystem(node_jac, rot_jac, res, selection)
@@ -292,15 +294,15 @@ def _normal_equations(node_jac, fields, rot_jac: np.ndarray, res: np.ndarray, se
     nn = node_jac.gram()
     nr = node_jac.rmatvec(rot_jac)
     g_nodes = node_jac.rmatvec(res)
-    if selection is not None:  # fields = columns of the identity: select instead of multiplying
-        fr, top, g_fields = nr[selection], nn[selection][:, selection], g_nodes[selection]
-    else:
-        fr, top, g_fields = fields.T @ nr, fields.T @ (nn @ fields), fields.T @ g_nodes
-    rhs = -np.concatenate([g_fields, rot_jac.T @ res])
-    normal = sp.bmat(
-        [[top, sp.csr_matrix(fr)], [sp.csr_matrix(fr.T), sp.csr_matrix(rot_jac.T @ rot_jac)]], format="csr"
-    )
-    return normal, rhs
+    corner = rot_jac.T @ rot_jac
+    if selection is None:
+        fr = fields.T @ nr
+        top = basis.normal_matrix(nn, node_jac.pattern.shape[1])
+        return np.block([[top, fr], [fr.T, corner]]), -np.concatenate([fields.T @ g_nodes, rot_jac.T @ res])
+    # fields = columns of the identity: select instead of multiplying
+    fr, top = nr[selection], nn[selection][:, selection]
+    normal = sp.bmat([[top, sp.csr_matrix(fr)], [sp.csr_matrix(fr.T), sp.csr_matrix(corner)]], format="csr")
+    return normal, -np.concatenate([g_nodes[selection], rot_jac.T @ res])
 
 
 def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:

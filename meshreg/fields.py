@@ -18,9 +18,33 @@ Bernal & Lawrence, Section 4 (the basis B of Riseth).
 
 from __future__ import annotations
 
+from collections import OrderedDict
+from functools import wraps
+
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.interpolate import BSpline
+
+BASIS_CACHE = 8  # bases kept per process, by kind, size and grid (every start and level asks for the same few)
+
+
+def _kept(make):
+    """``make(*args)`` (sizes and the partitions r, t) with its last BASIS_CACHE results kept: a basis and its field
+    matrix are built once per process and grid, not once per descent round (a basis is not modified once made)."""
+    kept = OrderedDict()
+
+    @wraps(make)
+    def cached(*args):
+        key = tuple(a.tobytes() if isinstance(a, np.ndarray) else a for a in args)
+        if key not in kept:
+            kept[key] = make(*args)
+            if len(kept) > BASIS_CACHE:
+                kept.popitem(last=False)
+        kept.move_to_end(key)
+        return kept[key]
+
+    return cached
 
 
 class TensorBasis:
@@ -42,6 +66,7 @@ class TensorBasis:
         self.sparse = sparse
         self.selection = None  # set when every field moves one node value: the rows of matrix() it keeps
         self._matrix = None
+        self._row_ranges = None
         self.shape1 = (self.a1.shape[1], self.b1.shape[1])
         self.shape2 = (self.a2.shape[1], self.b2.shape[1])
         self.size = self.shape1[0] * self.shape1[1] + self.shape2[0] * self.shape2[1]
@@ -78,6 +103,49 @@ class TensorBasis:
             self._matrix = self._build_matrix()
         return self._matrix
 
+    def row_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per row of :meth:`matrix` (a node value), the range [lo, hi) of the fields that may be non-zero there: the
+        fields of its component (the first and the second components' fields are separate columns)."""
+        if self._row_ranges is None:
+            m, n = self.a1.shape[0], self.b1.shape[0]
+            n1 = self.shape1[0] * self.shape1[1]
+            self._row_ranges = (np.tile([0, n1], m * n), np.tile([n1, self.size], m * n))
+        return self._row_ranges
+
+    def normal_matrix(self, gram: sp.csr_matrix, n: int) -> np.ndarray:
+        """W^T G W, dense (size, size), for the fields W (:meth:`matrix`) and a matrix G on the node values of an
+        M x n grid that couples each node only with its 8 neighbours (J^T J of the cell residuals,
+        :meth:`meshreg.cell_jacobian.CellJacobian.gram`).
+
+        The fields are separable, so the sum over pairs of nodes is done one axis at a time, over the non-zero
+        entries of the factors (:func:`_tensor_gram`): for the cubic B-spline bases about 10 times faster than the
+        sparse products ``W^T (G W)``, the same matrix to rounding.
+        """
+        factors = [(self.a1, self.b1), (self.a2, self.b2)]
+        offsets = np.cumsum([0, self.shape1[0] * self.shape1[1], self.shape2[0] * self.shape2[1]])
+        out = np.zeros((self.size, self.size))
+        for c, (a, b) in enumerate(factors):
+            for d, (a2, b2) in enumerate(factors):
+                if d < c:
+                    continue
+                block = out[offsets[c] : offsets[c + 1], offsets[d] : offsets[d + 1]]
+                _tensor_gram(
+                    gram.data,
+                    gram.indices,
+                    gram.indptr,
+                    n,
+                    c,
+                    d,
+                    *_nonzero(a),
+                    *_nonzero(b),
+                    *_nonzero(a2),
+                    *_nonzero(b2),
+                    block,
+                )
+        upper = out[: offsets[1], offsets[1] :]
+        out[offsets[1] :, : offsets[1]] = upper.T
+        return out
+
     def _build_matrix(self):
         m, n = self.a1.shape[0], self.b1.shape[0]
         if self.sparse:
@@ -95,6 +163,59 @@ class TensorBasis:
         return out.reshape(2 * m * n, self.size)
 
 
+def _nonzero(factor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A factor (nodes, functions) and, per node, the range [lo, hi) of functions not zero there."""
+    nonzero = factor != 0.0
+    lo = np.where(nonzero.any(axis=1), nonzero.argmax(axis=1), 0)
+    hi = np.where(nonzero.any(axis=1), factor.shape[1] - nonzero[:, ::-1].argmax(axis=1), 0)
+    return np.ascontiguousarray(factor), lo.astype(np.int64), hi.astype(np.int64)
+
+
+@numba.njit(cache=True)
+def _tensor_gram(data, indices, indptr, n, c, d, a, alo, ahi, b, blo, bhi, a2, a2lo, a2hi, b2, b2lo, b2hi, out):
+    """out[(p, s), (p2, s2)] += sum over entries G[(i, j, c), (i2, j2, d)] of G a[i, p] b[j, s] a2[i2, p2] b2[j2, s2].
+
+    For each node row i and neighbour row i2 the sum over j is done first (into x, (s, s2)), then spread over
+    (p, p2): the cost is that of the non-zero factor entries, not of every pair of fields.
+    """
+    m = len(indptr) // (2 * n)
+    ns, ns2 = b.shape[1], b2.shape[1]
+    x = np.zeros((3, ns, ns2))
+    lo = np.empty((3, ns), np.int64)
+    hi = np.empty((3, ns), np.int64)
+    for i in range(m):
+        x[:] = 0.0
+        lo[:] = ns2
+        hi[:] = 0
+        for j in range(n):
+            row = 2 * (i * n + j) + c
+            for k in range(indptr[row], indptr[row + 1]):
+                col = indices[k]
+                if col % 2 != d:
+                    continue
+                node = col // 2
+                i2, j2 = node // n, node % n
+                g = data[k]
+                di = i2 - i + 1
+                for s in range(blo[j], bhi[j]):
+                    gb = g * b[j, s]
+                    lo[di, s] = min(lo[di, s], b2lo[j2])
+                    hi[di, s] = max(hi[di, s], b2hi[j2])
+                    for s2 in range(b2lo[j2], b2hi[j2]):
+                        x[di, s, s2] += gb * b2[j2, s2]
+        for di in range(3):
+            i2 = i + di - 1
+            if i2 < 0 or i2 >= m:
+                continue
+            for p in range(alo[i], ahi[i]):
+                for p2 in range(a2lo[i2], a2hi[i2]):
+                    w = a[i, p] * a2[i2, p2]
+                    for s in range(ns):
+                        base = p * ns
+                        for s2 in range(lo[di, s], hi[di, s]):
+                            out[base + s, p2 * ns2 + s2] += w * x[di, s, s2]
+
+
 def _sines(x: np.ndarray, kl: int):
     k = np.pi * np.arange(1, kl + 1)
     return np.sqrt(2) * np.sin(np.outer(x, k)), np.sqrt(2) * k * np.cos(np.outer(x, k))
@@ -108,6 +229,7 @@ def _fourier(x: np.ndarray, kl: int):
     return values, derivs
 
 
+@_kept
 def riseth_basis(kl: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
     """The paper's basis truncated at KL: first components sqrt2 sin(pi k r) psi_l(t), second sqrt2 sin(pi k t)
     psi_l(r).
@@ -137,6 +259,7 @@ def _bsplines(x: np.ndarray, n: int):
     return np.nan_to_num(spline(x)), np.nan_to_num(spline.derivative()(x))
 
 
+@_kept
 def bspline_basis(n: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
     """Cubic B-spline fields with n functions per axis (n >= 4): 2 n (n - 2) fields.
 
@@ -151,6 +274,7 @@ def bspline_basis(n: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
     return TensorBasis((br[:, inner], dbr[:, inner], bt, dbt), (br, dbr, bt[:, inner], dbt[:, inner]), sparse=True)
 
 
+@_kept
 def node_basis(r: np.ndarray, t: np.ndarray) -> TensorBasis:
     """One field per free node value: moving one node of h along r (inner r nodes) or t (inner t nodes).
 

@@ -56,6 +56,13 @@ FLAGS: tuple[Flag, ...] = (
         "--max-rounds", "advanced.max_rounds", "most descent + Kabsch rounds per stage (default 10)", int, metavar="N"
     ),
     Flag(
+        "--dp-radius",
+        "advanced.dp_radius",
+        "mode auto: later DP passes search within this many nodes of the identity path (default 20; 0 = whole table)",
+        int,
+        metavar="N",
+    ),
+    Flag(
         "--smoothing",
         "smoothing",
         "mode gd: Gaussian scale-space levels of its third path, in side lengths, "

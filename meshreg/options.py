@@ -90,6 +90,12 @@ class Advanced:
     dp_rounds : int
         Most DP + Kabsch rounds of a DP pass; in mode "auto" also half the most passes along t and r that follow the
         first pass along r. Default 10.
+    dp_radius : int
+        Mode "auto", grids of at most 200 nodes along the DP's direction: the passes along r and t after the first
+        pass each way search only within this many nodes of the identity path (h is aligned by then), and the
+        whole table again when a path reaches the edge of that band; 0 searches the whole table in every pass.
+        Default 20 (twice the default window): on the paper's pairs every path is the one of the whole table; on
+        pairs of different shapes whose passes creep on for 10-20 alternations each pass costs about half.
     max_rounds : int
         Most descent + Kabsch rounds per stage (Step 3 of the paper's outline). Default 10.
     round_tol : float
@@ -164,6 +170,7 @@ class Advanced:
     """
 
     dp_rounds: int = 10
+    dp_radius: int = 20
     max_rounds: int = 10
     round_tol: float = 1e-4
     start_margin: float = 0.5
@@ -190,6 +197,7 @@ class Advanced:
     overlap_quick: float = 0.01
 
     def __post_init__(self):
+        _integer("dp_radius", self.dp_radius, 0, 1_000_000)
         for name in (
             "dp_rounds",
             "max_rounds",

@@ -23,7 +23,7 @@ import numpy as np
 
 from .descent import descend, gauss_newton
 from .diffeo import compose, enforce_boundary, jacobian_determinant
-from .dp import dp_surface_min
+from .dp import dp_surface_min, strip_bounds
 from .fields import bspline_basis, node_basis, riseth_basis
 from .grid import GridSurface
 from .objective import Objective
@@ -144,11 +144,15 @@ def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
 
     The DP starts from ``rotation``, or from Kabsch at the identity when it is None. Returns R, h, E.
     """
-    rounds = options.advanced.dp_rounds
+    rounds, radius = options.advanced.dp_rounds, options.advanced.dp_radius
     rotation, h, energy = _dp_along(objective, rotation, None, options.window, rounds, along_t=False)
     if both:
         for p in range(2 * rounds):
-            new_rotation, new_h, new_energy = _dp_along(objective, rotation, h, options.window, rounds, p % 2 == 0)
+            # after the first pass each way, h is aligned: later passes search near the identity path
+            near = radius if p >= 1 else 0
+            new_rotation, new_h, new_energy = _dp_along(
+                objective, rotation, h, options.window, rounds, p % 2 == 0, near
+            )
             # composing the two directions' steps can collapse cells, or stretch them beyond the descent's bound
             if not objective.admissible(new_h, options.advanced.max_stretch):
                 break
@@ -160,14 +164,27 @@ def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
     return rotation, h, energy
 
 
-def _dp_along(objective: Objective, rotation, h, window: int, dp_rounds: int, along_t: bool):
-    """One DP-surface-min pass on (q1, (q2, h)) along r or t; returns R, h o (gamma step), E."""
+def _dp_along(objective: Objective, rotation, h, window: int, dp_rounds: int, along_t: bool, radius: int = 0):
+    """One DP-surface-min pass on (q1, (q2, h)) along r or t; returns R, h o (gamma step), E.
+
+    With ``radius`` > 0 (and a grid small enough for the full table), the DP searches only within ``radius`` nodes
+    of the identity path, and again over the whole table when its path reaches the edge of that strip.
+    """
     q1, q2 = objective.q1, objective.second_on_first_grid(h)
     r, t = objective.r, objective.t
     if along_t:
         q1, q2, r, t = q1.transpose(1, 0, 2), q2.transpose(1, 0, 2), t, r
     coarsen = len(r) // DP_STRIP_NODES if len(r) > DP_FULL_NODES else 1
-    result = dp_surface_min(q1, q2, r, r, t, window=window, max_rounds=dp_rounds, rotation=rotation, coarsen=coarsen)
+    solve = partial(dp_surface_min, q1, q2, r, r, t, window=window, max_rounds=dp_rounds, rotation=rotation)
+    if coarsen == 1 and 0 < radius < len(r) - 1:
+        diagonal = np.repeat(np.arange(len(r)), 2).reshape(-1, 2)
+        lo, hi = strip_bounds(len(r), len(r), diagonal, radius)
+        result = solve(strip=(lo, hi))
+        rows, cols = result.path.T
+        if np.any(((cols == lo[rows]) & (cols > 0)) | ((cols == hi[rows]) & (cols < len(r) - 1))):
+            result = solve()
+    else:
+        result = solve(coarsen=coarsen)
     step = objective.identity.copy()
     if along_t:
         step[..., 1] = result.gamma[None, :]

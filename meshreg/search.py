@@ -174,8 +174,9 @@ def best_start(
         ob = Objective(coarse1, apply_symmetry(coarse2, k))
         q2 = ob.second_on_first_grid()
         candidates = [kabsch(ob.best_rotation_covariance(ob.identity)), *rotations]
+        seen = {}
         results = [
-            dp_surface_min(ob.q1, q2, ob.r, ob.r, ob.t, window=window, rotation=rotation, max_rounds=3)
+            dp_surface_min(ob.q1, q2, ob.r, ob.r, ob.t, window=window, rotation=rotation, max_rounds=3, seen=seen)
             for rotation in candidates
         ]
         for result in sorted(results, key=lambda x: x.energy):

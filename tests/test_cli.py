@@ -231,6 +231,7 @@ MESH_FLAG_CASES = {
         lambda r: r.symmetry == 0 and {s["symmetry"] for s in r.params["starts"]} == {0},
     ),
     "--max-rounds": (["--max-rounds", "2"], lambda r: r.params["max_rounds"] == 2),
+    "--dp-radius": (["--dp-radius", "0"], lambda r: r.params["dp_radius"] == 0),
     "--smoothing": (
         ["--mode", "gd", "--smoothing", "0.2"],
         lambda r: r.params["smoothing"] == [0.2] and "smoothing" in r.timings,

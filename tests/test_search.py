@@ -63,3 +63,16 @@ def test_other_surfaces_with_general_rotations(make, seed):
     result = meshreg.register(first, second)
     assert result.energy < 1e-3
     assert angle_between(result.rotation, rot) < 1.0
+
+
+def test_later_dp_passes_in_a_band_find_the_whole_table_paths():
+    """Mode auto's DP passes after the first one each way search within Advanced.dp_radius nodes of the identity
+    path: on a pair of different shapes (several passes) the answer is the one of the whole table (dp_radius=0)."""
+    from meshreg.options import Advanced
+
+    pair = next(p for p in meshreg.samples.paper_pairs(41, 41) if p.name == "sine2-3 g2")
+    banded = meshreg.register(pair.first, pair.second)
+    whole = meshreg.register(pair.first, pair.second, advanced=Advanced(dp_radius=0))
+    assert banded.params["dp_radius"] == 20 and whole.params["dp_radius"] == 0
+    assert banded.energy_dp == pytest.approx(whole.energy_dp, rel=1e-9)
+    assert banded.energy == pytest.approx(whole.energy, rel=1e-9)
