@@ -141,21 +141,26 @@ def _newton_polar(c, rotations, nu, done):
                 break
 
 
-def local_fit(q1: np.ndarray, q2: np.ndarray, win: Window) -> tuple[float, np.ndarray]:
-    """E_w(h) for shape functions q1 and (q2, h) (M-1, N-1, 3), and the target M q1 (M-1, N-1, 3) of its
-    fixed-target form (see the module's docstring)."""
+def local_rotations(q1: np.ndarray, q2: np.ndarray, win: Window) -> tuple[float, np.ndarray]:
+    """E_w(h) for shape functions q1 and (q2, h) (M-1, N-1, 3), and the best rotation field R (M-1, N-1, 3, 3)."""
     w = win.weights
     a = np.einsum("ija,ijb->ijab", q2, q1) * (w / win.kappa)[..., None, None]
     rotations, nu = polar_rotations(win.apply(a))
     energy = float(np.sum(w * (np.sum(q1 * q1, axis=-1) + np.sum(q2 * q2, axis=-1))) - 2.0 * np.sum(w * nu))
-    averaged = win.apply(rotations * w[..., None, None]) / win.kappa[..., None, None]
-    return max(energy, 0.0), np.einsum("ijab,ijb->ija", averaged, q1)
+    return max(energy, 0.0), rotations
+
+
+def fixed_target(q1: np.ndarray, rotations: np.ndarray, win: Window) -> np.ndarray:
+    """The target M q1 (M-1, N-1, 3) of the fixed-target form of E_w (see the module's docstring), for the best
+    rotation field R (M-1, N-1, 3, 3) of :func:`local_rotations`."""
+    averaged = win.apply(rotations * win.weights[..., None, None]) / win.kappa[..., None, None]
+    return np.einsum("ijab,ijb->ija", averaged, q1)
 
 
 def local_energy(first_points: np.ndarray, second_points: np.ndarray, r, t, window: float) -> float:
     """E_w at h = identity of two surfaces sampled on one grid (points (M, N, 3), both at area 1)."""
     win = Window(r, t, window)
-    return local_fit(shape_function(first_points, r, t), shape_function(second_points, r, t), win)[0]
+    return local_rotations(shape_function(first_points, r, t), shape_function(second_points, r, t), win)[0]
 
 
 class LocalObjective(Objective):
@@ -178,18 +183,23 @@ class LocalObjective(Objective):
         self.shape_q1 = self.q1
         self._win = Window(self.r, self.t, window)
 
-    def fit(self, h: np.ndarray) -> tuple[float, np.ndarray]:
-        """E_w(h) and the target M q1 of the fixed-target energy at h."""
-        return local_fit(self.shape_q1, self.q2(h), self._win)
+    def _fitted(self, h: np.ndarray) -> dict:
+        """E_w(h) and the best rotation field at h, kept with the second surface's values at h (the descent asks
+        for the energy of an accepted step and then linearizes at the same h: one fit serves both)."""
+        last = self._at(h)
+        if "rotations" not in last:
+            last["energy"], last["rotations"] = local_rotations(self.shape_q1, self.q2(h), self._win)
+        return last
 
     def energy(self, rotation: np.ndarray, h: np.ndarray) -> float:
         """E_w(h) (the rotation is absorbed by the rotation field)."""
-        return self.fit(h)[0]
+        return self._fitted(h)["energy"]
 
     def _targeted(self, h: np.ndarray) -> float:
         """Refresh the target M q1 from h (the fixed-target energy's q1); returns E_w(h)."""
-        energy, self.q1 = self.fit(h)
-        return energy
+        last = self._fitted(h)
+        self.q1 = fixed_target(self.shape_q1, last["rotations"], self._win)
+        return last["energy"]
 
     def best_rotation_covariance(self, h: np.ndarray) -> np.ndarray:
         """A covariance whose Kabsch rotation is the identity (the rotation field needs no global rotation)."""
