@@ -286,8 +286,8 @@ def _normal_equations(node_jac, basis: TensorBasis, rot_jac: np.ndarray, res: np
     """
     fields, selection = basis.matrix(), basis.selection
     if not sp.issparse(fields):
-        jac = node_jac.times_dense(fields, rot_jac, basis.row_ranges())
-        return jac.T @ jac, -(jac.T @ res)
+        normal, rhs = node_jac.normal_dense(fields, rot_jac, res, basis.row_ranges())
+        return normal, -rhs
     if selection is not None and len(selection) + 3 > DENSE_LIMIT:
         system = NodeSystem(node_jac, rot_jac, res, selection)
         return system, system.rhs
