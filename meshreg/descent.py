@@ -24,6 +24,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
 from scipy.spatial.transform import Rotation
 
+from .banded import banded_solve
 from .diffeo import enforce_boundary, is_valid, largest_step
 from .fields import TensorBasis, riseth_basis
 from .normal_system import NodeSystem
@@ -32,6 +33,7 @@ from .options import StepParams
 from .spline import GridInterpolator
 
 DENSE_LIMIT = 2000
+ROTATION_UNKNOWNS = 3  # the last unknowns of every step (omega), coupled with all others
 # an additive (node) step that would fold h is shortened to this fraction of the largest step that does not, before
 # the damping grows: each growth of the damping costs another solve of the normal equations (on the paper's pairs at
 # 101 x 101, 10 of the node level's 16 solves were such re-solves)
@@ -308,7 +310,8 @@ def _normal_equations(node_jac, basis: TensorBasis, rot_jac: np.ndarray, res: np
 def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:
     """Solve (normal + diag(shift)) x = rhs (symmetric positive definite); x on the basis' coefficients and R.
 
-    Up to ``DENSE_LIMIT`` unknowns by Cholesky; beyond (the node basis, a :class:`NodeSystem`; a global basis of
+    Up to ``DENSE_LIMIT`` unknowns by Cholesky (banded after reordering where the fields couple locally:
+    :func:`~meshreg.banded.banded_solve`); beyond (the node basis, a :class:`NodeSystem`; a global basis of
     KL >= 23, dense), by Jacobi-preconditioned CG stopped after ``cg_iterations``: the result is only a
     Gauss-Newton step, which the energy test accepts or rejects, so an inexact solve is enough.
     """
@@ -317,6 +320,9 @@ def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np
     if normal.shape[0] <= DENSE_LIMIT:
         dense = normal.toarray() if sp.issparse(normal) else normal
         try:
+            banded = banded_solve(dense, shift, rhs, ROTATION_UNKNOWNS)
+            if banded is not None:
+                return banded
             return scipy.linalg.cho_solve(scipy.linalg.cho_factor(dense + np.diag(shift)), rhs)
         except np.linalg.LinAlgError:
             return np.linalg.lstsq(dense + np.diag(shift), rhs, rcond=None)[0]
