@@ -20,30 +20,29 @@ BANDED_MAX_FRACTION = 0.4  # banded only when the band (after ordering) is at mo
 
 
 class _Ordering:
-    """The reverse Cuthill-McKee order of a symmetric matrix's unknowns (k,), its band (the largest |i - j| of a
-    non-zero entry after ordering) and the positions of the band's lower form (band + 1, k) in the matrix."""
+    """The reverse Cuthill-McKee order (k,) of the first k unknowns of a symmetric (n, n) matrix, its band (the
+    largest |i - j| of a non-zero entry of the top left (k, k) corner after ordering) and where the band's lower
+    form (band + 1, k) lies in the flattened matrix."""
 
-    def __init__(self, local: np.ndarray):
-        k = len(local)
-        rows, cols = np.nonzero(local)
+    def __init__(self, matrix: np.ndarray, k: int):
+        rows, cols = np.nonzero(matrix[:k, :k])
         self.order = reverse_cuthill_mckee(sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(k, k)), True)
         position = np.empty(k, np.int64)
         position[self.order] = np.arange(k)
         self.band = int(np.abs(position[rows] - position[cols]).max(initial=0))
-        j = np.arange(k) + np.arange(self.band + 1)[:, None]  # row j + d of the ordered matrix, column j
+        j = np.arange(k) + np.arange(self.band + 1)[:, None]  # row j + d of the ordered corner, column j
         self.inside = j < k
-        self.rows = self.order[np.where(self.inside, j, 0)]
-        self.cols = np.broadcast_to(self.order, j.shape)
+        self.flat = self.order[np.where(self.inside, j, 0)] * matrix.shape[1] + self.order
 
-    def lower(self, local: np.ndarray) -> np.ndarray | None:
-        """The lower band form (band + 1, k) of ``local`` in this order; None when ``local`` has non-zero entries
-        outside the band (found by counting them)."""
-        lower = np.where(self.inside, local[self.rows, self.cols], 0.0)
+    def lower(self, matrix: np.ndarray, k: int) -> np.ndarray | None:
+        """The lower band form (band + 1, k) of the top left (k, k) corner of a contiguous (n, n) ``matrix`` in this
+        order; None when the corner has non-zero entries outside the band (found by counting them)."""
+        lower = np.where(self.inside, matrix.ravel().take(self.flat), 0.0)
         inside = 2 * np.count_nonzero(lower) - np.count_nonzero(lower[0])
-        return lower if inside == np.count_nonzero(local) else None
+        return lower if inside == np.count_nonzero(matrix[:k, :k]) else None
 
 
-_ORDERINGS: dict[int, _Ordering] = {}  # per size, the last ordering: the next matrix of that size is tried on it
+_ORDERINGS: dict[tuple[int, int], _Ordering] = {}  # per (n, k), the last ordering: the next matrix is tried on it
 
 
 def banded_solve(matrix: np.ndarray, shift: np.ndarray, rhs: np.ndarray, border: int) -> np.ndarray | None:
@@ -74,16 +73,16 @@ def banded_solve(matrix: np.ndarray, shift: np.ndarray, rhs: np.ndarray, border:
     k = n - border
     if n < BANDED_MIN:
         return None
-    local = matrix[:k, :k]
-    ordering = _ORDERINGS.get(k)
+    matrix = np.ascontiguousarray(matrix)
+    ordering = _ORDERINGS.get((n, k))
     if ordering is not None and ordering.band > BANDED_MAX_FRACTION * n:
         return None  # this size's last matrix was not banded: the dense factorization, without looking again
-    lower = None if ordering is None else ordering.lower(local)
+    lower = None if ordering is None else ordering.lower(matrix, k)
     if lower is None:
-        ordering = _ORDERINGS[k] = _Ordering(local)
+        ordering = _ORDERINGS[(n, k)] = _Ordering(matrix, k)
         if ordering.band > BANDED_MAX_FRACTION * n:
             return None
-        lower = ordering.lower(local)
+        lower = ordering.lower(matrix, k)
     order = ordering.order
     lower[0] += shift[:k][order]
     factor = scipy.linalg.cholesky_banded(lower, lower=True, check_finite=False)
