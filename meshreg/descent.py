@@ -298,9 +298,12 @@ def _normal_equations(node_jac, basis: TensorBasis, rot_jac: np.ndarray, res: np
     g_nodes = node_jac.rmatvec(res)
     corner = rot_jac.T @ rot_jac
     if selection is None:
-        fr = fields.T @ nr
-        top = basis.normal_matrix(nn, node_jac.pattern.shape[1])
-        return np.block([[top, fr], [fr.T, corner]]), -np.concatenate([fields.T @ g_nodes, rot_jac.T @ res])
+        normal = np.empty((basis.size + 3, basis.size + 3))
+        basis.normal_matrix(nn, node_jac.pattern.shape[1], out=normal[:-3, :-3])
+        normal[:-3, -3:] = fields.T @ nr
+        normal[-3:, :-3] = normal[:-3, -3:].T
+        normal[-3:, -3:] = corner
+        return normal, -np.concatenate([fields.T @ g_nodes, rot_jac.T @ res])
     # fields = columns of the identity: select instead of multiplying
     fr, top = nr[selection], nn[selection][:, selection]
     normal = sp.bmat([[top, sp.csr_matrix(fr)], [sp.csr_matrix(fr.T), sp.csr_matrix(corner)]], format="csr")

@@ -112,10 +112,11 @@ class TensorBasis:
             self._row_ranges = (np.tile([0, n1], m * n), np.tile([n1, self.size], m * n))
         return self._row_ranges
 
-    def normal_matrix(self, gram: sp.csr_matrix, n: int) -> np.ndarray:
+    def normal_matrix(self, gram: sp.csr_matrix, n: int, out: np.ndarray | None = None) -> np.ndarray:
         """W^T G W, dense (size, size), for the fields W (:meth:`matrix`) and a matrix G on the node values of an
         M x n grid that couples each node only with its 8 neighbours (J^T J of the cell residuals,
-        :meth:`meshreg.cell_jacobian.CellJacobian.gram`).
+        :meth:`meshreg.cell_jacobian.CellJacobian.gram`). With ``out`` (size, size), e.g. a corner of a larger normal
+        matrix, it is written there (and returned) instead of into a new array.
 
         The fields are separable, so the sum over pairs of nodes is done one axis at a time, over the non-zero
         entries of the factors (:func:`_tensor_gram`): for the cubic B-spline bases about 10 times faster than the
@@ -123,7 +124,10 @@ class TensorBasis:
         """
         factors = [(self.a1, self.b1), (self.a2, self.b2)]
         offsets = np.cumsum([0, self.shape1[0] * self.shape1[1], self.shape2[0] * self.shape2[1]])
-        out = np.zeros((self.size, self.size))
+        if out is None:
+            out = np.zeros((self.size, self.size))
+        else:
+            out[:] = 0.0
         for c, (a, b) in enumerate(factors):
             for d, (a2, b2) in enumerate(factors):
                 if d < c:
