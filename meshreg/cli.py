@@ -426,5 +426,24 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+def run() -> None:
+    """The console command: :func:`main`, then a quick exit. Once nothing else runs (no other thread, no child
+    process), the exit handlers run and the process ends without the interpreter's teardown, which only frees what
+    the system reclaims anyway (modules, numba's compiled code: 0.1-0.3 s after a registration)."""
+    import atexit
+    import multiprocessing
+
+    code = main()
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except OSError:  # a closed pipe: nothing left to say
+        pass
+    if threading.active_count() == 1 and not multiprocessing.active_children():
+        atexit._run_exitfuncs()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
