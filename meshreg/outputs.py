@@ -142,15 +142,17 @@ def write_mesh_registration(
     with Painter(1) as painter:
         mr = register_meshes(first, second, options, callback)
         result = mr.result
-        (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
-        c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
-        on_second = result.correspondence()
-        # result.correspondence_on_first(), from the second's matches on the first's square already found
-        on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]
-        uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
         title = f"E = {result.energy:.3g}"
         names = [RESULT_FILE, FIGURE_FILE, *MESH_FILES] + ([VIEW_FILE] if html else [])
         with staged(out, names) as stage:
+            # queued first: the painter draws it while the coloured meshes and the correspondence are computed
+            _registration_figure(painter, result, *mr.grids, stage / FIGURE_FILE, title)
+            (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
+            c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
+            on_second = result.correspondence()
+            # result.correspondence_on_first(), from the second's matches on the first's square already found
+            on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]
+            uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
             painter.draw(
                 "plot_meshes",
                 stage / "meshes.png",
@@ -164,7 +166,6 @@ def write_mesh_registration(
                 second_to_first=np.linalg.inv(result.transform),
                 distance=result.distances() / np.sqrt(result.second.area()),
             )
-            _registration_figure(painter, result, *mr.grids, stage / FIGURE_FILE, title)
             write_ply(stage / "first.ply", v1, f1, c1)
             write_ply(stage / "second.ply", v2, f2, c2)
             write_ply(stage / "registered.ply", *registered)

@@ -11,7 +11,6 @@ reparametrization, so the last level is always the original pair.
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
 from .grid import GridSurface
 
@@ -59,6 +58,8 @@ def smoothed(surface: GridSurface, sigma: float, nodes: int) -> GridSurface:
 
 def _blur(points: np.ndarray, sigma_nodes: float, axis: int) -> np.ndarray:
     """Gaussian filter along ``axis`` with the array continued by point reflection at both ends."""
+    from scipy.ndimage import gaussian_filter1d  # here: only mode "gd" smooths; scipy.ndimage takes 0.05 s to load
+
     pad = min(int(np.ceil(4 * sigma_nodes)), points.shape[axis] - 1)
     a = np.moveaxis(points, axis, 0)
     head = 2 * a[:1] - a[pad:0:-1]

@@ -54,6 +54,7 @@ def test_console_script_runs_paper_mode(grid_files, tmp_path):
         text=True,
     )
     assert proc.returncode == 0, proc.stderr
+    assert "written" in proc.stdout  # printed, and flushed before run() ends the process without the teardown
     assert Registration.load(tmp_path / "result.npz").params["window"] == 7
 
 
