@@ -64,7 +64,7 @@ def plot_registration(
     second = second_registered - second_registered.reshape(-1, 3).mean(axis=0)
     fig = Figure(figsize=(15, 4.8), dpi=FIGURE_DPI)
     bottom = 0.12 + 0.035 * len(notes)
-    fig.subplots_adjust(left=0.02, right=0.98, bottom=bottom, top=0.9, wspace=0.3)
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=bottom, top=0.9, wspace=0.42)
     ax = fig.add_subplot(1, 3, 1)
     turn = camera(ELEVATION, AZIMUTH)[:2]  # the curves drawn as an orthographic camera sees them
     for pts, style, label in ((first, "b-", "R c1"), (second, "r--", "c2 o h")):
