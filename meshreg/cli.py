@@ -71,12 +71,16 @@ def _registering(quiet: bool):
     return tqdm(desc="registering", unit=" steps", disable=quiet, leave=False, delay=1.0)
 
 
+# modules whose numba kernels every registration runs (grids and meshes): when their caches are missing, the run
+# compiles; kernels of other modules (the mesh front end, the node system of large grids) are compiled by the runs
+# that need them, so a missing cache there says nothing about this run
+CORE_KERNELS = ("spline", "srnf", "cell_jacobian")
+
+
 def _kernels_cached() -> bool:
-    """Whether numba has cached the compiled kernels of every module that has them (else the first run compiles)."""
+    """Whether numba has cached the kernels every registration runs (:data:`CORE_KERNELS`; else this run compiles)."""
     package = Path(__file__).parent
-    files = [*package.glob("*.py"), *package.glob("mesh/*.py")]
-    modules = [f for f in files if f.name != "cli.py" and "@numba.njit(cache=True" in f.read_text()]
-    return all(any(f.parent.glob(f"__pycache__/{f.stem}.*.nbi")) for f in modules)
+    return all(any(package.glob(f"__pycache__/{name}.*.nbi")) for name in CORE_KERNELS)
 
 
 def cmd_register(args) -> int:

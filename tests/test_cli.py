@@ -322,3 +322,13 @@ def test_the_painter_does_not_fork_while_another_thread_runs():
     thread.start()
     thread.join()
     assert made[0]._pool is None
+
+
+def test_the_first_run_check_looks_at_kernels_that_exist():
+    from pathlib import Path
+
+    import meshreg.cli as cli
+
+    package = Path(cli.__file__).parent
+    for name in cli.CORE_KERNELS:
+        assert "@numba.njit(cache=True" in (package / f"{name}.py").read_text(), name
