@@ -139,26 +139,26 @@ class Objective:
         """The factor of :meth:`stretch` for every edge: along r (M-1, N) and along t (M, N-1)."""
         _, dc_du, dc_dv = self.c2(h)
         out = []
-        for axis, lengths, spacing in zip(
-            (0, 1), self.edge_lengths, np.ix_(np.diff(self.r), np.diff(self.t)), strict=True
-        ):
+        for axis, lengths, in_square in zip((0, 1), self.edge_lengths, self._square_stretch(h), strict=True):
             dh = np.diff(h, axis=axis)
             ends = [np.take(d, np.arange(h.shape[axis] - 1) + k, axis=axis) for d in (dc_du, dc_dv) for k in (0, 1)]
             start = np.linalg.norm(ends[0] * dh[..., :1] + ends[2] * dh[..., 1:], axis=-1)
             end = np.linalg.norm(ends[1] * dh[..., :1] + ends[3] * dh[..., 1:], axis=-1)
             on_surfaces = 0.5 * (start + end) / lengths
-            in_square = np.linalg.norm(dh, axis=-1) / spacing
             out.append(np.minimum(on_surfaces, in_square))
         return out[0], out[1]
+
+    def _square_stretch(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """|dh| over the edge's length in the square, for every edge: along r (M-1, N) and along t (M, N-1)."""
+        spacing_r, spacing_t = np.ix_(np.diff(self.r), np.diff(self.t))
+        along_r = np.linalg.norm(np.diff(h, axis=0), axis=-1) / spacing_r
+        return along_r, np.linalg.norm(np.diff(h, axis=1), axis=-1) / spacing_t
 
     def over_stretch(self, h: np.ndarray, max_stretch: float) -> tuple[np.ndarray, np.ndarray]:
         """The edges (along r (M-1, N) and along t (M, N-1), booleans) that h stretches by more than ``max_stretch``
         (:meth:`edge_stretch`). The stretch in the square comes first: when it keeps every edge within the bound, the
         second surface and its derivatives are not evaluated."""
-        spacings = np.ix_(np.diff(self.r), np.diff(self.t))
-        over = tuple(
-            np.linalg.norm(np.diff(h, axis=a), axis=-1) / d > max_stretch for a, d in zip((0, 1), spacings, strict=True)
-        )
+        over = tuple(stretch > max_stretch for stretch in self._square_stretch(h))
         if not (over[0].any() or over[1].any()):
             return over
         along_r, along_t = self.edge_stretch(h)
