@@ -9,6 +9,7 @@ import numpy as np
 from ..bending import register_bending
 from ..correspondence import Side, inverse_uv
 from ..errors import InputError
+from ..forked import Forked
 from ..options import Options
 from ..pipeline import register_grids
 from ..result import Registration
@@ -19,6 +20,11 @@ from .overlap import rigid_overlap, warped_overlap
 from .partial import register_overlap
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
+
+# Meshes of together at least this many triangles get their maps to the square in a forked child while the overlap is
+# checked (``Advanced.processes``): the fork and the answer's way back cost about 0.02 s; two 100k-triangle meshes'
+# maps 0.5 s.
+FORK_FACES = 20_000
 
 
 @dataclass
@@ -96,10 +102,13 @@ def register_meshes(
     n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
     if options.overlap == "off":
         return register_disks(disks, maps, n_input, infos, options, callback)
-    found = rigid_overlap(disks[0], disks[1], options.advanced.overlap_quick)
+    fork = options.advanced.processes > 1 and sum(len(d.faces) for d in disks) >= FORK_FACES
+    with Forked(square_grids, disks, maps, options, fork=fork) as squares:  # the maps, beside the overlap check
+        found = rigid_overlap(disks[0], disks[1], options.advanced.overlap_quick)
+        mapped = None if found.regime == "rigid" else squares.result()
     if found.regime == "rigid":
         return register_overlap(disks[0], disks[1], found, n_input, options, infos)
-    whole = register_disks(disks, maps, n_input, infos, options, callback)
+    whole = register_disks(disks, maps, n_input, infos, options, callback, mapped)
     if found.regime == "deformed":
         matches = whole.result.first.at_uv(whole.matched_uv2)[0]
         found = warped_overlap(disks[0], disks[1], found, matches)
@@ -111,42 +120,87 @@ def register_meshes(
     return replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
 
 
+@dataclass
+class SquareGrids:
+    """Two prepared disks on the square: what :func:`register_disks` computes before it registers.
+
+    Attributes
+    ----------
+    uvs : [ndarray (n1, 2), ndarray (n2, 2)]
+        Each disk vertex's place on the square.
+    reports : [dict, dict]
+        Each map's report (:meth:`meshreg.mesh.harmonic.HarmonicMap.__call__`).
+    tried : list or None
+        The second disk's corner placements tried by a search (:func:`meshreg.mesh.corners.corner_positions`).
+    symmetry : int or None
+        The symmetry of the square that corners given for both disks fix.
+    grids : [GridSurface, GridSurface]
+        The disks resampled on ``options.resolution`` x ``options.resolution`` nodes.
+    edge : float
+        The mean of both disks' median edge lengths on the square (NaN outside the bending path, which alone uses
+        it).
+    """
+
+    uvs: list
+    reports: list
+    tried: list | None
+    symmetry: int | None
+    grids: list
+    edge: float
+
+
+def square_grids(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options) -> SquareGrids:
+    """Both disks' corners, maps to the square and grids (the first part of :func:`register_disks`)."""
+    positions, tried, symmetry = corner_positions(disks, maps, options)
+    uvs, reports = zip(*(m(p) for m, p in zip(maps, positions, strict=True)), strict=True)
+    n = options.resolution
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
+    edge = float("nan")
+    if options.mode == "auto" and options.bend_window > 0:
+        edge = float(np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]))
+    return SquareGrids(list(uvs), list(reports), tried, symmetry, grids, edge)
+
+
 def register_disks(
-    disks: list[DiskMesh], maps: list[HarmonicMap], n_input: tuple[int, int], infos: dict, options: Options, callback
+    disks: list[DiskMesh],
+    maps: list[HarmonicMap],
+    n_input: tuple[int, int],
+    infos: dict,
+    options: Options,
+    callback,
+    squares: SquareGrids | None = None,
 ) -> MeshRegistration:
     """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners,
-    harmonic maps, grids, :func:`meshreg.bending.register_bending` or :func:`meshreg.pipeline.register_grids`.
+    harmonic maps, grids (:func:`square_grids`), :func:`meshreg.bending.register_bending` or
+    :func:`meshreg.pipeline.register_grids`.
 
     Parameters
     ----------
     disks : [DiskMesh, DiskMesh]
     maps : [HarmonicMap, HarmonicMap]
-        Their factorized Laplacians.
+        Their Laplacians (factorized at their first use).
     n_input : (int, int)
         Vertex counts of the meshes as given.
     infos : dict
         The preparation report per mesh ("first", "second"), completed here.
+    squares : SquareGrids, optional
+        :func:`square_grids` of the disks when already computed (else computed here).
     """
     infos = {name: dict(info) for name, info in infos.items()}
-    positions, tried, symmetry = corner_positions(disks, maps, options)
+    squares = square_grids(disks, maps, options) if squares is None else squares
+    symmetry, uvs, grids = squares.symmetry, squares.uvs, squares.grids
     if symmetry is not None and options.symmetry not in (None, symmetry):
         raise InputError(
             f"the corners given for both meshes fix the symmetry of the square to {symmetry}, not the pinned "
             f"{options.symmetry}: give corners or a symmetry, not both"
         )
-    if tried is not None:
-        infos["second"]["corner_search"] = tried
-    uvs = []
-    for name, m, p in zip(("first", "second"), maps, positions, strict=True):
-        uv, info = m(p)
-        uvs.append(uv)
-        infos[name].update(info)
-    n = options.resolution
-    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
+    if squares.tried is not None:
+        infos["second"]["corner_search"] = squares.tried
+    for name, report in zip(("first", "second"), squares.reports, strict=True):
+        infos[name].update(report)
     pinned = options.symmetry if symmetry is None else symmetry
     if options.mode == "auto" and options.bend_window > 0:
-        edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])
-        finest = options.advanced.refine_triangles * edges
+        finest = options.advanced.refine_triangles * squares.edge
         result = register_bending(grids[0], grids[1], options, callback, pinned, finest)
     else:
         result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
