@@ -103,7 +103,7 @@ def register_meshes(
     if options.overlap == "off":
         return register_disks(disks, maps, n_input, infos, options, callback)
     fork = options.advanced.processes > 1 and sum(len(d.faces) for d in disks) >= FORK_FACES
-    with Forked(square_grids, disks, maps, options, fork=fork) as squares:  # the maps, beside the overlap check
+    with Forked(square_maps, disks, maps, options, fork=fork) as squares:  # the maps, beside the overlap check
         found = rigid_overlap(disks[0], disks[1], options.advanced.overlap_quick)
         mapped = None if found.regime == "rigid" else squares.result()
     if found.regime == "rigid":
@@ -121,8 +121,8 @@ def register_meshes(
 
 
 @dataclass
-class SquareGrids:
-    """Two prepared disks on the square: what :func:`register_disks` computes before it registers.
+class SquareMaps:
+    """Two prepared disks' corners and maps to the square (:func:`square_maps`).
 
     Attributes
     ----------
@@ -134,31 +134,19 @@ class SquareGrids:
         The second disk's corner placements tried by a search (:func:`meshreg.mesh.corners.corner_positions`).
     symmetry : int or None
         The symmetry of the square that corners given for both disks fix.
-    grids : [GridSurface, GridSurface]
-        The disks resampled on ``options.resolution`` x ``options.resolution`` nodes.
-    edge : float
-        The mean of both disks' median edge lengths on the square (NaN outside the bending path, which alone uses
-        it).
     """
 
     uvs: list
     reports: list
     tried: list | None
     symmetry: int | None
-    grids: list
-    edge: float
 
 
-def square_grids(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options) -> SquareGrids:
-    """Both disks' corners, maps to the square and grids (the first part of :func:`register_disks`)."""
+def square_maps(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options) -> SquareMaps:
+    """Both disks' corners and maps to the square (the first part of :func:`register_disks`)."""
     positions, tried, symmetry = corner_positions(disks, maps, options)
     uvs, reports = zip(*(m(p) for m, p in zip(maps, positions, strict=True)), strict=True)
-    n = options.resolution
-    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
-    edge = float("nan")
-    if options.mode == "auto" and options.bend_window > 0:
-        edge = float(np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]))
-    return SquareGrids(list(uvs), list(reports), tried, symmetry, grids, edge)
+    return SquareMaps(list(uvs), list(reports), tried, symmetry)
 
 
 def register_disks(
@@ -168,10 +156,10 @@ def register_disks(
     infos: dict,
     options: Options,
     callback,
-    squares: SquareGrids | None = None,
+    squares: SquareMaps | None = None,
 ) -> MeshRegistration:
-    """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners,
-    harmonic maps, grids (:func:`square_grids`), :func:`meshreg.bending.register_bending` or
+    """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners and
+    harmonic maps (:func:`square_maps`), grids, :func:`meshreg.bending.register_bending` or
     :func:`meshreg.pipeline.register_grids`.
 
     Parameters
@@ -183,12 +171,12 @@ def register_disks(
         Vertex counts of the meshes as given.
     infos : dict
         The preparation report per mesh ("first", "second"), completed here.
-    squares : SquareGrids, optional
-        :func:`square_grids` of the disks when already computed (else computed here).
+    squares : SquareMaps, optional
+        :func:`square_maps` of the disks when already computed (else computed here).
     """
     infos = {name: dict(info) for name, info in infos.items()}
-    squares = square_grids(disks, maps, options) if squares is None else squares
-    symmetry, uvs, grids = squares.symmetry, squares.uvs, squares.grids
+    squares = square_maps(disks, maps, options) if squares is None else squares
+    symmetry, uvs = squares.symmetry, squares.uvs
     if symmetry is not None and options.symmetry not in (None, symmetry):
         raise InputError(
             f"the corners given for both meshes fix the symmetry of the square to {symmetry}, not the pinned "
@@ -198,9 +186,12 @@ def register_disks(
         infos["second"]["corner_search"] = squares.tried
     for name, report in zip(("first", "second"), squares.reports, strict=True):
         infos[name].update(report)
+    n = options.resolution
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
     pinned = options.symmetry if symmetry is None else symmetry
     if options.mode == "auto" and options.bend_window > 0:
-        finest = options.advanced.refine_triangles * squares.edge
+        edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])
+        finest = options.advanced.refine_triangles * edges
         result = register_bending(grids[0], grids[1], options, callback, pinned, finest)
     else:
         result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
