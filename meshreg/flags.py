@@ -124,7 +124,7 @@ FLAGS: tuple[Flag, ...] = (
         "--processes",
         "advanced.processes",
         "processes one registration may use: 2 maps two large meshes to the square in a forked process while their "
-        "overlap is checked; 1 = serial (default 2)",
+        "overlap is checked (when a core is idle); 1 = serial (default 2)",
         int,
         metavar="N",
         group="meshes",

@@ -170,10 +170,10 @@ class Advanced:
     processes : int
         Processes one registration may keep busy at once. With 2, a pair of meshes (together at least
         ``meshreg.mesh.correspond.FORK_FACES`` triangles) gets its corners and maps to the square computed in a
-        forked child while the caller checks the overlap (:class:`meshreg.forked.Forked`; Linux, more than one core,
-        not inside a daemonic process nor while other Python threads run; the answer is the serial one). 1 = all in
-        the calling process. Default 2. The distance matrix runs its pairs with 1 (its workers already keep every
-        core busy).
+        forked child while the caller checks the overlap (:class:`meshreg.forked.Forked`: on Linux, when a core is
+        idle, not inside a daemonic process nor while other Python threads run; the answer is the serial one). 1 =
+        all in the calling process. Default 2. The distance matrix runs its pairs with 1 (its workers already keep
+        every core busy).
     """
 
     dp_rounds: int = 10

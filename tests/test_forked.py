@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+import meshreg.forked
 from meshreg.errors import InputError
-from meshreg.forked import Forked, may_fork
+from meshreg.forked import Forked, idle_core, may_fork
 from meshreg.mesh import correspond
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.options import Advanced, Options
@@ -20,7 +21,8 @@ def _refuse(x):
     raise InputError(f"no {x}")
 
 
-def test_forked_answer_comes_from_a_child_and_equals_the_serial_one():
+def test_forked_answer_comes_from_a_child_and_equals_the_serial_one(monkeypatch):
+    monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)  # fork even on a busy machine
     with Forked(_pid_and_square, 7, fork=True) as job:
         started = job.forked
         pid, value = job.result()
@@ -43,6 +45,16 @@ def test_a_child_whose_answer_is_not_asked_for_is_stopped():
     assert child is None or child._closed
 
 
+def test_idle_core_reads_the_running_tasks(monkeypatch, tmp_path):
+    assert isinstance(idle_core(), bool)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    path = tmp_path / "loadavg"
+    for running, idle in (("1", True), ("2", False), ("5", False)):
+        path.write_text(f"0.5 0.4 0.3 {running}/90 123\n")
+        assert idle_core(str(path)) == idle
+    assert idle_core(str(tmp_path / "missing"))
+
+
 def test_processes_is_checked():
     with pytest.raises(InputError, match="processes"):
         Advanced(processes=3)
@@ -50,6 +62,7 @@ def test_processes_is_checked():
 
 def test_mesh_pair_registered_with_a_forked_child_equals_the_serial_registration(monkeypatch):
     monkeypatch.setattr(correspond, "FORK_FACES", 0)  # fork for these small meshes too
+    monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)  # and on a busy machine
     turn = Rotation.random(random_state=2).as_matrix()
     a = random_disk_mesh(bump(), 600, seed=1)[:2]
     b = random_disk_mesh(bump(), 900, seed=2, rotation=turn)[:2]
