@@ -222,9 +222,22 @@ def arc_fraction(disk: DiskMesh, position: int) -> float:
 
 
 def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
-    """Median length of a mesh's edges on the square (its resolution there), for faces (m, 3) and uv (n, 2)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return float(np.median(np.linalg.norm(uv[e[:, 0]] - uv[e[:, 1]], axis=1)))
+    """Median length of a mesh's edges on the square (its resolution there), for faces (m, 3) and uv (n, 2): over
+    the three sides of every triangle (an inner edge counts twice)."""
+    lengths = _side_lengths(np.ascontiguousarray(faces, dtype=np.int64), np.ascontiguousarray(uv, dtype=float))
+    return float(np.median(lengths))
+
+
+@numba.njit(cache=True)
+def _side_lengths(faces: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Lengths (3m,) of the sides of the triangles (m, 3) on the plane (uv (n, 2))."""
+    out = np.empty(3 * len(faces))
+    for f in range(len(faces)):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            du, dv = uv[a, 0] - uv[b, 0], uv[a, 1] - uv[b, 1]
+            out[3 * f + k] = np.sqrt(du * du + dv * dv)
+    return out
 
 
 @numba.njit(cache=True)
