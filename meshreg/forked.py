@@ -43,6 +43,11 @@ def idle_core(loadavg: str = "/proc/loadavg") -> bool:
     return running < (os.cpu_count() or 1)
 
 
+def can_fork() -> bool:
+    """Whether :class:`Forked` would fork now (:func:`may_fork` and :func:`idle_core`)."""
+    return may_fork() and idle_core()
+
+
 def leave_signals_to_caller() -> None:
     """In a forked child: ignore Ctrl-C and die on SIGTERM (the caller stops its children)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -62,8 +67,8 @@ def _serve(conn, function: Callable, args: tuple) -> None:
 
 
 class Forked:
-    """``function(*args)``, computed in a forked child from the moment this is made when ``fork`` is true,
-    :func:`may_fork` allows it and a core is idle (:func:`idle_core`), else (or when the child gives no answer) in the
+    """``function(*args)``, computed in a forked child from the moment this is made when ``fork`` is true and
+    :func:`can_fork` (safe, and a core is idle), else (or when the child gives no answer) in the
     caller by :meth:`result`.
 
     Use as a context manager: leaving it stops a child whose answer was not asked for (work that turned out not to
@@ -72,7 +77,7 @@ class Forked:
     def __init__(self, function: Callable, *args, fork: bool = True):
         self._function, self._args = function, args
         self._child = self._conn = None
-        if fork and may_fork() and idle_core():
+        if fork and can_fork():
             context = multiprocessing.get_context("fork")
             ours, theirs = context.Pipe(duplex=False)
             self._child = context.Process(target=_serve, args=(theirs, function, args), daemon=True)

@@ -10,7 +10,7 @@ import numpy as np
 from ..bending import register_bending
 from ..correspondence import Side, inverse_uv
 from ..errors import InputError
-from ..forked import Forked
+from ..forked import Forked, can_fork
 from ..options import Options
 from ..pipeline import register_grids
 from ..result import Registration
@@ -113,7 +113,9 @@ def register_meshes(
     n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
     if options.overlap == "off":
         return register_disks(disks, maps, n_input, infos, options, callback)
-    fork = options.advanced.processes > 1 and sum(len(d.faces) for d in disks) >= FORK_FACES
+    fork = options.advanced.processes > 1 and sum(len(d.faces) for d in disks) >= FORK_FACES and can_fork()
+    if fork:  # the Laplacians here, their LUs in the child: then both sides take about as long
+        _assembled(maps)
     with Forked(square_maps, disks, maps, options, fork=fork) as squares:  # the maps, beside the overlap check
         found = rigid_overlap(disks[0], disks[1], options.advanced.overlap_quick)
         mapped = None if found.regime == "rigid" else squares.result()
@@ -129,6 +131,16 @@ def register_meshes(
     spent = whole.result.timings
     timings = {**spent, "overlap": found.seconds, "total": spent.get("total", 0.0) + found.seconds}
     return replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
+
+
+def _assembled(maps: list[HarmonicMap]) -> None:
+    """Assemble the maps' Laplacians ahead of their use; an error is left for the use to meet (the regime may not
+    need the maps at all)."""
+    try:
+        for m in maps:
+            m.assemble()
+    except Exception:  # noqa: BLE001 - met again, in its place, where the maps are used
+        pass
 
 
 @dataclass

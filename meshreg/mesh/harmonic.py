@@ -327,12 +327,20 @@ class HarmonicMap:
         inside = np.ones(len(disk.vertices), dtype=bool)
         inside[disk.boundary] = False
         self.interior = np.flatnonzero(inside)
+        self._blocks = None
+
+    def assemble(self) -> tuple[sp.csc_matrix, sp.csr_matrix]:
+        """The Laplacian's interior block (i, i), CSC, and its coupling to the boundary loop (i, b), CSR
+        (:func:`laplacian_blocks`), assembled at the first call and kept."""
+        if self._blocks is None:
+            self._blocks = laplacian_blocks(self.disk, self.interior, self.weights)
+        return self._blocks
 
     @cached_property
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
         without interior vertices)."""
-        block, coupling = laplacian_blocks(self.disk, self.interior, self.weights)
+        block, coupling = self.assemble()
         return coupling, factorize(block) if len(self.interior) else None
 
     def __call__(self, corner_pos: np.ndarray):
