@@ -100,7 +100,7 @@ def mesh_rows(faces: int, quick: bool) -> list[tuple[str, float, str]]:
     seconds, result = timed(meshreg.register, a, b)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     child = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
-    note = f"{result.energy:.3g}" + (f" (forked child: {child:.2f} s CPU)" if child > 0 else " (no child: serial)")
+    note = f"{result.energy:.3g}" + (f" (forked child: {child:.2f} s CPU)" if child > 0.01 else " (no child: serial)")
     rows.append((f"two meshes of {len(a[1])}/{len(b[1])} triangles, API", seconds, note))
     if quick:
         return rows
