@@ -312,6 +312,27 @@ def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_the
             painter.finish()
 
 
+def test_a_painter_left_by_an_error_stops_its_worker_at_once():
+    import time
+
+    from meshreg.painter import Painter
+
+    tic = time.perf_counter()
+    with pytest.raises(RuntimeError), Painter(1) as painter:
+        workers = list(painter._workers)
+        raise RuntimeError("bad input found after the fork")
+    for worker in workers:  # stopped in its start-up (matplotlib's import, the warm-up figure), not left to end it
+        worker.join(timeout=10)
+        assert not worker.is_alive()
+    assert time.perf_counter() - tic < 10
+
+
+def test_the_figures_warm_up_draws_to_nowhere():
+    from meshreg import viz
+
+    viz.warm_up()
+
+
 def test_the_painter_does_not_fork_while_another_thread_runs():
     import threading
 
