@@ -16,10 +16,8 @@ ones are written all together or not at all (:func:`meshreg.files.staged`). See 
 
 from __future__ import annotations
 
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,10 +25,8 @@ from .errors import InputError
 from .files import output_dir, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
 from .painter import Painter
-
-if TYPE_CHECKING:  # the registration's modules are imported when a run needs them, after the figure worker forks
-    from .result import Registration
-    from .schedule import Progress
+from .result import Registration
+from .schedule import Progress
 
 RESULT_FILE = "result.npz"
 REVERSE_FILE = "result_reverse.npz"
@@ -89,57 +85,38 @@ def register_files(
         Meshes: also write the interactive page ``view.html``.
     callback : callable, optional
         Progress, as for :func:`meshreg.register`.
-
-    The figure worker (:class:`~meshreg.painter.Painter`) is forked before the files are read and the registration's
-    modules imported: its start-up runs on another core while this process reads and registers.
     """
+    from .grid import read_grid
+    from .mesh.topology import load_mesh
+    from .surfaces import Mesh
+
     options = options or Options()
     paths = [Path(first), Path(second)]
     kinds = {surface_kind(p) for p in paths}
     if len(kinds) > 1:
         raise InputError("give two meshes or two grid files, not one of each")
-    if kinds == {"mesh"} and symmetric:
-        raise InputError("--symmetric registers grid files both ways; for meshes, run register twice")
-    with Painter(1) as painter:
-        if kinds == {"mesh"}:
-            from .mesh.topology import load_mesh
-            from .surfaces import Mesh
-
-            meshes = [Mesh(*load_mesh(p), name=str(p)) for p in paths]
-            side = (options.resolution, options.resolution)
-            options.check_grids(side, side)
-            out = prepare_output(out, paths)
-            return write_mesh_registration(*meshes, out, options, callback, html, painter)
-        from .grid import read_grid
-
-        grids = [read_grid(p, grid_shape) for p in paths]
-        options.check_grids(grids[0].shape, grids[1].shape)
+    if kinds == {"mesh"}:
         if symmetric:
-            options.check_grids(grids[1].shape, grids[0].shape)
-        out = prepare_output(out, paths)
-        return write_grid_registration(grids[0], grids[1], out, options, symmetric, callback, painter)
-
-
-def _painting(painter: Painter | None):
-    """The painter given (the caller's block ends it), or a new one of one worker for this block."""
-    return nullcontext(painter) if painter is not None else Painter(1)
+            raise InputError("--symmetric registers grid files both ways; for meshes, run register twice")
+        meshes = [Mesh(*load_mesh(p), name=str(p)) for p in paths]
+        side = (options.resolution, options.resolution)
+        options.check_grids(side, side)
+        return write_mesh_registration(*meshes, prepare_output(out, paths), options, callback, html)
+    grids = [read_grid(p, grid_shape) for p in paths]
+    options.check_grids(grids[0].shape, grids[1].shape)
+    if symmetric:
+        options.check_grids(grids[1].shape, grids[0].shape)
+    return write_grid_registration(grids[0], grids[1], prepare_output(out, paths), options, symmetric, callback)
 
 
 def write_grid_registration(
-    first,
-    second,
-    out: Path,
-    options: Options,
-    symmetric: bool = False,
-    callback: Progress | None = None,
-    painter: Painter | None = None,
+    first, second, out: Path, options: Options, symmetric: bool = False, callback: Progress | None = None
 ) -> Written:
     """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result) into
-    the prepared directory ``out``, all together or not at all; the figure is drawn by ``painter`` (by default a
-    new :class:`~meshreg.painter.Painter`)."""
+    the prepared directory ``out``, all together or not at all."""
     from .pipeline import register_with
 
-    with _painting(painter) as painter:
+    with Painter(1) as painter:
         result = register_with(first, second, options, callback)
         reverse = register_with(second, first, options) if symmetric else None
         names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
@@ -154,21 +131,15 @@ def write_grid_registration(
 
 
 def write_mesh_registration(
-    first,
-    second,
-    out: Path,
-    options: Options,
-    callback: Progress | None = None,
-    html: bool = False,
-    painter: Painter | None = None,
+    first, second, out: Path, options: Options, callback: Progress | None = None, html: bool = False
 ) -> Written:
     """Register two meshes (:class:`meshreg.surfaces.Mesh`) and write coloured meshes, ``result.npz``, both
-    figures and, with ``html``, the interactive page ``view.html``. The figures are drawn by ``painter`` (by default
-    a new :class:`~meshreg.painter.Painter`; in a worker process where it can) while the other files are written."""
+    figures and, with ``html``, the interactive page ``view.html``. The figures are drawn by a
+    :class:`~meshreg.painter.Painter` (in worker processes where it can) while the other files are written."""
     from .mesh.correspond import register_meshes
     from .mesh.export import colored_outputs, write_ply
 
-    with _painting(painter) as painter:
+    with Painter(1) as painter:
         mr = register_meshes(first, second, options, callback)
         result = mr.result
         title = f"E = {result.energy:.3g}"
