@@ -353,3 +353,26 @@ def test_the_first_run_check_looks_at_kernels_that_exist():
     package = Path(cli.__file__).parent
     for name in cli.CORE_KERNELS:
         assert "@numba.njit(cache=True" in (package / f"{name}.py").read_text(), name
+
+
+def test_a_registration_written_to_files_runs_blas_on_one_thread(tmp_path):
+    """The figure worker takes the other core: BLAS threads are limited while the command registers and writes,
+    and the caller's setting comes back after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from meshreg.outputs import register_files
+    from meshreg.samples import paper_pairs
+
+    pair = paper_pairs(21, 21)[6]
+    np.save(tmp_path / "a.npy", pair.first.points)
+    np.save(tmp_path / "b.npy", pair.second.points)
+    seen = []
+
+    def threads(*_):
+        seen.append(max(pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"))
+
+    with threadpool_limits(2, user_api="blas"):
+        register_files(tmp_path / "a.npy", tmp_path / "b.npy", tmp_path / "out", callback=threads)
+        after = max(pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas")
+    assert seen and set(seen) == {1}
+    assert after == 2
