@@ -2,13 +2,13 @@
 process(es) as soon as it is made; a worker imports matplotlib (about 0.4 s) and draws a tiny figure
 (:func:`meshreg.viz.warm_up`: fonts, the PNG writer, the mesh renderer's numba kernel; about 0.5 s that the first
 real figure would otherwise pay) while the caller registers, then draws the figures it is given while the caller
-writes its other files. ``meshreg register`` makes its painter after its own imports (numpy, numba, scipy), which
-the worker shares instead of importing them again beside the caller (forked at the start of the command, the worker
-made the command 0.4 s slower in 3 of 4 runs on a busy 2-core machine). One worker draws every figure of a
-registration: it then spends the CPU time the caller would have spent, on the other core (a second worker would
-import matplotlib twice and, on a loaded 2-core machine, slow the caller more than it saves). Elsewhere (or with one
-core) the figures are drawn in the calling process by :meth:`Painter.finish` (also inside a daemonic pool worker or
-while other Python threads run, where a fork is unsafe). Either way every figure is written when
+writes its other files. ``meshreg register`` makes its painter after its own imports (numpy, numba, scipy) and
+numba's set-up, which the worker inherits instead of doing them again beside the caller (forked at the start of the
+command, the worker made the command 0.4 s slower in 3 of 4 runs on a busy 2-core machine). One worker draws every
+figure of a registration: it then spends the CPU time the caller would have spent, on the other core (a second
+worker would import matplotlib twice and, on a loaded 2-core machine, slow the caller more than it saves). Elsewhere
+(or with one core) the figures are drawn in the calling process by :meth:`Painter.finish` (also inside a daemonic
+pool worker or while other Python threads run, where a fork is unsafe). Either way every figure is written when
 :meth:`Painter.finish` returns, and an error drawing one is raised there; when the block of a painter ends by an
 exception its workers are stopped at once (SIGTERM), not left to finish their start-up or a figure.
 """
