@@ -71,6 +71,9 @@ def test_other_ply_layouts_are_left_to_trimesh(tmp_path):
     edges = _header_and_body(XYZ_FLOAT, vertices, ("uchar", "u1"), ("int", "i4"), faces, more="element edge 0")
     path.write_bytes(edges)
     assert read_ply(path) is None  # another element
+    renamed = _header_and_body(XYZ_FLOAT, vertices, ("uchar", "u1"), ("int", "i4"), faces).replace(b"indices", b"list")
+    path.write_bytes(renamed)
+    assert read_ply(path) is None  # faces under a name trimesh does not read them from
     path.write_bytes(_header_and_body(XYZ_FLOAT, vertices, ("uchar", "u1"), ("int", "i4"), faces)[:-5])
     assert read_ply(path) is None  # cut short: trimesh says what is wrong
 

@@ -64,8 +64,9 @@ def _header(data: bytes):
 
 def read_ply(path) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices (n, 3) float64 and triangles (m, 3) int64 of a binary PLY file whose elements are ``vertex`` (scalar
-    properties, x, y and z among them) and then ``face`` (one list property, every face a triangle), in file order;
-    None for any other file (ASCII, polygons, other elements, a short or malformed file)."""
+    properties, x, y and z among them) and then ``face`` (one list property, ``vertex_indices`` or ``vertex_index``,
+    every face a triangle), in file order; None for any other file (ASCII, polygons, other elements, a short or
+    malformed file)."""
     data = Path(path).read_bytes()
     header = _header(data)
     if header is None:
@@ -81,6 +82,8 @@ def read_ply(path) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     face = face_props[0]
     if len(face) != 4 or face[0] != "list" or face[1] not in SCALARS or face[2] not in SCALARS:
+        return None
+    if face[3] not in ("vertex_indices", "vertex_index"):  # the names trimesh reads faces from
         return None
     vertex_type = np.dtype([(name, order + SCALARS[p[0]]) for name, p in zip(names, vertex_props, strict=True)])
     face_type = np.dtype([("count", order + SCALARS[face[1]]), ("index", order + SCALARS[face[2]], (3,))])
