@@ -21,7 +21,7 @@ import json
 import os
 import time
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -382,8 +382,10 @@ def run_pairs(prepared, todo, options: Options, finish, *, client=None, jobs: in
     j's grid or its corner placements, on the Dask ``client`` or a local pool of ``jobs`` processes (default: the
     machine's cores; 1 runs in this process; a lost process costs only its pair), and call ``finish(i, j,
     record)`` as each ends (a failed pair's record is ``{"error": reason}``). ``task`` defaults to
-    :func:`register_pair`; it must be picklable."""
+    :func:`register_pair`; it must be picklable. Each pair runs in one process (``Advanced.processes`` = 1): the
+    pairs already keep the workers busy."""
     task = task or register_pair
+    options = options.replace(advanced=replace(options.advanced, processes=1))
     if client is not None:
         _run_dask(client, prepared, todo, options, finish, task)
     else:

@@ -121,6 +121,15 @@ FLAGS: tuple[Flag, ...] = (
         group="meshes",
     ),
     Flag(
+        "--processes",
+        "advanced.processes",
+        "processes one registration may use: 2 maps two large meshes to the square in a forked process while their "
+        "overlap is checked (when a core is idle); 1 = serial (default 2)",
+        int,
+        metavar="N",
+        group="meshes",
+    ),
+    Flag(
         "--no-cleanup",
         "cleanup",
         "refuse to repair meshes (holes, pieces, ears, pinched vertices)",

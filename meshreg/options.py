@@ -167,6 +167,13 @@ class Advanced:
         (:func:`meshreg.mesh.overlap.same_region`). At most 0.02 (the tolerance of the full check); 0 = always the
         feature search. Default 0.01: two random triangulations of one terrain patch leave 0.04% and 0.002% beyond
         the rims, a crop of 3% is not mistaken for the whole. Saves 1-1.5 s on two 100k-triangle meshes.
+    processes : int
+        Processes one registration may keep busy at once. With 2, a pair of meshes (together at least
+        ``meshreg.mesh.correspond.FORK_FACES`` triangles) gets its corners and maps to the square computed in a
+        forked child while the caller checks the overlap (:class:`meshreg.forked.Forked`: on Linux, when a core is
+        idle, not inside a daemonic process nor while other Python threads run; the answer is the serial one). 1 =
+        all in the calling process. Default 2. The distance matrix runs its pairs with 1 (its workers already keep
+        every core busy).
     """
 
     dp_rounds: int = 10
@@ -195,6 +202,7 @@ class Advanced:
     refine_triangles: float = 6.0
     ambiguity: float = 0.01
     overlap_quick: float = 0.01
+    processes: int = 2
 
     def __post_init__(self):
         _integer("dp_radius", self.dp_radius, 0, 1_000_000)
@@ -210,6 +218,7 @@ class Advanced:
         ):
             _integer(name, getattr(self, name), 1, 1_000_000)
         _integer("fine_stretch_masks", self.fine_stretch_masks, 0, 1_000_000)
+        _integer("processes", self.processes, 1, 2)
         for name in (
             "round_tol",
             "rel_tol",

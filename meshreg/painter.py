@@ -16,30 +16,15 @@ exception its workers are stopped at once (SIGTERM), not left to finish their st
 from __future__ import annotations
 
 import multiprocessing
-import os
-import signal
-import sys
-import threading
 from concurrent.futures import Future, ProcessPoolExecutor
 
-
-def _may_fork() -> bool:
-    """Whether forking a worker is safe and useful here: Linux, more than one core, not inside a daemonic process
-    (a pool worker may not have children) and no other Python thread running (a fork copies locks other threads
-    may hold, e.g. in a Dask client or a GUI)."""
-    return (
-        sys.platform.startswith("linux")
-        and (os.cpu_count() or 1) > 1
-        and not multiprocessing.current_process().daemon
-        and threading.active_count() == 1
-    )
+from .forked import leave_signals_to_caller, may_fork
 
 
 def _start_worker() -> None:
     """In a worker: leave Ctrl-C and SIGTERM to the caller (it stops the workers), then import the figures and draw
     a tiny one (:func:`meshreg.viz.warm_up`)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    leave_signals_to_caller()
     from . import viz
 
     viz.warm_up()
@@ -61,7 +46,7 @@ class Painter:
         self._jobs: list[Future] = []
         self._queued: list[tuple] = []
         self._workers: list = []
-        if workers > 0 and _may_fork():
+        if workers > 0 and may_fork():
             context = multiprocessing.get_context("fork")
             before = set(multiprocessing.active_children())
             self._pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker)

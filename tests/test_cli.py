@@ -252,6 +252,7 @@ MESH_FLAG_CASES = {
         ["--overlap-quick", "0"],
         lambda r: r.params["overlap_quick"] == 0 and "quick" not in r.info["overlap"]["pose_source"],
     ),
+    "--processes": (["--processes", "1"], lambda r: r.params["processes"] == 1),
     "--corners1": (["--corners1", "CORNERS1"], lambda r: len(r.params["corners1"]) == 4),
     "--corners2": (["--corners2", "CORNERS2"], lambda r: len(r.params["corners2"]) == 4),
 }

@@ -222,9 +222,22 @@ def arc_fraction(disk: DiskMesh, position: int) -> float:
 
 
 def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
-    """Median length of a mesh's edges on the square (its resolution there), for faces (m, 3) and uv (n, 2)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return float(np.median(np.linalg.norm(uv[e[:, 0]] - uv[e[:, 1]], axis=1)))
+    """Median length of a mesh's edges on the square (its resolution there), for faces (m, 3) and uv (n, 2): over
+    the three sides of every triangle (an inner edge counts twice)."""
+    lengths = _side_lengths(np.ascontiguousarray(faces, dtype=np.int64), np.ascontiguousarray(uv, dtype=float))
+    return float(np.median(lengths))
+
+
+@numba.njit(cache=True)
+def _side_lengths(faces: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Lengths (3m,) of the sides of the triangles (m, 3) on the plane (uv (n, 2))."""
+    out = np.empty(3 * len(faces))
+    for f in range(len(faces)):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            du, dv = uv[a, 0] - uv[b, 0], uv[a, 1] - uv[b, 1]
+            out[3 * f + k] = np.sqrt(du * du + dv * dv)
+    return out
 
 
 @numba.njit(cache=True)
@@ -314,12 +327,20 @@ class HarmonicMap:
         inside = np.ones(len(disk.vertices), dtype=bool)
         inside[disk.boundary] = False
         self.interior = np.flatnonzero(inside)
+        self._blocks = None
+
+    def assemble(self) -> tuple[sp.csc_matrix, sp.csr_matrix]:
+        """The Laplacian's interior block (i, i), CSC, and its coupling to the boundary loop (i, b), CSR
+        (:func:`laplacian_blocks`), assembled at the first call and kept."""
+        if self._blocks is None:
+            self._blocks = laplacian_blocks(self.disk, self.interior, self.weights)
+        return self._blocks
 
     @cached_property
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
         without interior vertices)."""
-        block, coupling = laplacian_blocks(self.disk, self.interior, self.weights)
+        block, coupling = self.assemble()
         return coupling, factorize(block) if len(self.interior) else None
 
     def __call__(self, corner_pos: np.ndarray):

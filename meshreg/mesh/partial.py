@@ -114,7 +114,7 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     )
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip((trimmed1, trimmed2), (uv1, uv2), n_input, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
-    return MeshRegistration(trimmed1, trimmed2, uv1, uv2, (grid1, grid2), result, uv2, infos)
+    return MeshRegistration(trimmed1, trimmed2, uv1, uv2, (grid1, grid2), result, infos, matches=uv2)
 
 
 def _on_the_rim(

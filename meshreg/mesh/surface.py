@@ -22,9 +22,22 @@ NEAREST_VERTICES = 6  # a point's closest point is sought on the triangles aroun
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unnormalized normals (m, 3) of the triangles: twice their area times the unit normal."""
-    v = vertices
-    return np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    """Unnormalized normals (m, 3) of the triangles: twice their area times the unit normal (the cross product of
+    their sides from the first corner, as ``np.cross`` computes it, in one numba pass)."""
+    return _face_normals(np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64))
+
+
+@numba.njit(cache=True)
+def _face_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    out = np.empty((len(faces), 3))
+    for f in range(len(faces)):
+        i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
+        a0, a1, a2 = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
+        b0, b1, b2 = v[k, 0] - v[i, 0], v[k, 1] - v[i, 1], v[k, 2] - v[i, 2]
+        out[f, 0] = a1 * b2 - a2 * b1
+        out[f, 1] = a2 * b0 - a0 * b2
+        out[f, 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -37,9 +50,37 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def median_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """Median length of the triangles' edges."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
-    return float(np.median(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1)))
+    """Median length of the triangles' edges (their first two sides: an inner edge is seen about once)."""
+    v, f = np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64)
+    return float(np.median(_two_sides(v, f)))
+
+
+@numba.njit(cache=True)
+def _two_sides(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Lengths (2m,) of the sides (0, 1) of every triangle, then of the sides (1, 2)."""
+    m = len(faces)
+    out = np.empty(2 * m)
+    for k in range(2):
+        for f in range(m):
+            a, b = faces[f, k], faces[f, k + 1]
+            dx = vertices[a, 0] - vertices[b, 0]
+            dy = vertices[a, 1] - vertices[b, 1]
+            dz = vertices[a, 2] - vertices[b, 2]
+            out[k * m + f] = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return out
+
+
+@numba.njit(cache=True)
+def _incident_triangles(faces: np.ndarray, n: int, width: int) -> np.ndarray:
+    """Per vertex of n, the triangles (m, 3) that hold it, in increasing order (n, width), padded with -1."""
+    out = np.full((n, width), -1, np.int64)
+    filled = np.zeros(n, np.int64)
+    for f in range(len(faces)):
+        for k in range(3):
+            v = faces[f, k]
+            out[v, filled[v]] = f
+            filled[v] += 1
+    return out
 
 
 def cube_labels(points: np.ndarray, spacing: float) -> np.ndarray:
@@ -197,16 +238,9 @@ class Surface:
 
     @cached_property
     def _incident(self) -> np.ndarray:
-        """Per vertex, the triangles around it (n, max valence), padded with -1."""
-        f = self.faces.ravel()
-        tri = np.repeat(np.arange(len(self.faces)), 3)
-        order = np.argsort(f, kind="stable")
-        counts = np.bincount(f, minlength=len(self.vertices))
-        starts = np.r_[0, np.cumsum(counts)[:-1]]
-        out = np.full((len(self.vertices), max(int(counts.max()), 1)), -1, dtype=np.int64)
-        rank = np.arange(len(f)) - np.repeat(starts, counts)
-        out[f[order], rank] = tri[order]
-        return out
+        """Per vertex, the triangles around it in increasing order (n, max valence), padded with -1."""
+        counts = np.bincount(self.faces.ravel(), minlength=len(self.vertices))
+        return _incident_triangles(self.faces, len(self.vertices), max(int(counts.max()), 1))
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Closest points (k, 3) on the triangles to ``points`` (k, 3), their distances (k,), the triangles that

@@ -1,0 +1,77 @@
+import os
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import meshreg.forked
+from meshreg.errors import InputError
+from meshreg.forked import Forked, idle_core, may_fork
+from meshreg.mesh import correspond
+from meshreg.mesh.samples import random_disk_mesh
+from meshreg.options import Advanced, Options
+from meshreg.samples import bump
+
+
+def _pid_and_square(x):
+    return os.getpid(), x * x
+
+
+def _refuse(x):
+    raise InputError(f"no {x}")
+
+
+def test_forked_answer_comes_from_a_child_and_equals_the_serial_one(monkeypatch):
+    monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)  # fork even on a busy machine
+    with Forked(_pid_and_square, 7, fork=True) as job:
+        started = job.forked
+        pid, value = job.result()
+    assert value == 49
+    assert started == may_fork()
+    assert (pid != os.getpid()) == started
+    pid, value = Forked(_pid_and_square, 7, fork=False).result()
+    assert (pid, value) == (os.getpid(), 49)
+
+
+def test_an_error_in_the_child_is_met_again_in_the_caller():
+    with Forked(_refuse, 3) as job, pytest.raises(InputError, match="no 3"):
+        job.result()
+
+
+def test_a_child_whose_answer_is_not_asked_for_is_stopped():
+    job = Forked(_pid_and_square, 2)
+    child = job._child
+    job.close()
+    assert child is None or child._closed
+
+
+def test_idle_core_reads_the_running_tasks(monkeypatch, tmp_path):
+    assert isinstance(idle_core(), bool)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    path = tmp_path / "loadavg"
+    for running, idle in (("1", True), ("2", False), ("5", False)):
+        path.write_text(f"0.5 0.4 0.3 {running}/90 123\n")
+        assert idle_core(str(path)) == idle
+    assert idle_core(str(tmp_path / "missing"))
+
+
+def test_processes_is_checked():
+    with pytest.raises(InputError, match="processes"):
+        Advanced(processes=3)
+
+
+def test_mesh_pair_registered_with_a_forked_child_equals_the_serial_registration(monkeypatch):
+    monkeypatch.setattr(correspond, "FORK_FACES", 0)  # fork for these small meshes too
+    monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)  # and on a busy machine
+    turn = Rotation.random(random_state=2).as_matrix()
+    a = random_disk_mesh(bump(), 600, seed=1)[:2]
+    b = random_disk_mesh(bump(), 900, seed=2, rotation=turn)[:2]
+    forked, serial = (
+        correspond.register_meshes(a, b, Options(resolution=31, advanced=Advanced(processes=p))) for p in (2, 1)
+    )
+    assert forked.result.energy == serial.result.energy
+    np.testing.assert_array_equal(forked.result.h, serial.result.h)
+    np.testing.assert_array_equal(forked.matched_uv2, serial.matched_uv2)
+    for info in (forked.info, serial.info):
+        info["overlap"].pop("seconds")
+    assert forked.info == serial.info
