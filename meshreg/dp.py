@@ -15,6 +15,7 @@ Bernal & Lawrence, Section 4, Step 1 of the outline (Procedure DP-surface-min).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from math import gcd
 
@@ -26,6 +27,9 @@ from .rotation import kabsch
 DEFAULT_WINDOW = 10
 DEFAULT_DP_ROUNDS = 10
 DEFAULT_DP_TOL = 1e-9
+# partitions whose intervals all equal their mean to this relative tolerance are uniform: the DP then takes each
+# edge's pieces from a table made once per step (:func:`uniform_pieces`); equal to the general edge walk to rounding
+UNIFORM_TOL = 1e-12
 
 
 def steps(window: int) -> np.ndarray:
@@ -123,6 +127,76 @@ def _dp_table(r1, s2, g, step, lo, hi):
     return best, pred
 
 
+def uniform_pieces(step: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pieces of every step's edge when both partitions are uniform: they depend on the step alone.
+
+    The edge (k0, l0) -> (k0 + dk, l0 + dl) crosses the lines of the first partition at k0 + 1, ..., and those of
+    the second at k0 + b dk / dl (in units of the first partition's spacing); with gcd(dk, dl) = 1 no two crossings
+    inside the edge coincide, so it has dk + dl - 1 pieces.
+
+    Returns
+    -------
+    first : ndarray (S + 1,)
+        Step s owns pieces ``first[s]:first[s + 1]``.
+    da, db : ndarray of int
+        Each piece's cell, relative to (k0, l0).
+    length : ndarray
+        Each piece's length along r, in units of the first partition's spacing.
+    """
+    first, da, db, length = [0], [], [], []
+    for dk, dl in step:
+        cuts = np.unique(np.r_[np.arange(dk + 1), np.arange(dl + 1) * dk / dl])
+        middle = 0.5 * (cuts[1:] + cuts[:-1])
+        da += list(np.floor(middle).astype(np.int64))
+        db += list(np.floor(middle * dl / dk).astype(np.int64))
+        length += list(np.diff(cuts))
+        first.append(len(length))
+    return np.array(first), np.array(da, dtype=np.int64), np.array(db, dtype=np.int64), np.array(length)
+
+
+def uniform_spacing(r: np.ndarray) -> float | None:
+    """The spacing of a uniform partition (every interval equal to UNIFORM_TOL, relative), else None."""
+    d = np.diff(r)
+    mean = (r[-1] - r[0]) / len(d)
+    return float(mean) if np.all(np.abs(d - mean) <= UNIFORM_TOL * mean) else None
+
+
+@numba.njit(cache=True)
+def _dp_table_uniform(g, step, lo, hi, first, da, db, length, weight):
+    """:func:`_dp_table` on uniform partitions: each edge's cross term is ``weight[s]`` times the sum of its
+    pieces' lengths times g of their cells (:func:`uniform_pieces`), without locating its breakpoints; for one k
+    and one step, the edges to every l of the row are summed together (contiguous in g: vectorized)."""
+    na, nb = g.shape[0] + 1, g.shape[1] + 1
+    best = np.full((na, nb), -np.inf)
+    pred = np.full((na, nb), -1, dtype=np.int64)
+    best[0, 0] = 0.0
+    edge = np.empty(nb)
+    for k in range(1, na):
+        start, stop = max(lo[k], 1), hi[k] + 1
+        top = best[k]
+        arg = pred[k]
+        for s in range(step.shape[0]):
+            k0 = k - step[s, 0]
+            dl = step[s, 1]
+            begin = max(start, dl)
+            if k0 < 0 or begin >= stop:
+                continue
+            edge[begin:stop] = 0.0
+            for p in range(first[s], first[s + 1]):
+                row = g[k0 + da[p]]
+                shift = db[p] - dl
+                w = length[p]
+                for l in range(begin, stop):
+                    edge[l] += w * row[l + shift]
+            previous = best[k0]
+            for l in range(begin, stop):
+                val = previous[l - dl] + weight[s] * edge[l]
+                if val > top[l]:
+                    top[l] = val
+                    arg[l] = s
+    return best, pred
+
+
 def _backtrack(pred: np.ndarray, step: np.ndarray) -> np.ndarray:
     k, l = pred.shape[0] - 1, pred.shape[1] - 1
     if pred[k, l] < 0:
@@ -133,6 +207,23 @@ def _backtrack(pred: np.ndarray, step: np.ndarray) -> np.ndarray:
         k, l = k - dk, l - dl
         path.append((k, l))
     return np.array(path[::-1], dtype=np.int64)
+
+
+def _table_function(r1: np.ndarray, r2: np.ndarray, step: np.ndarray):
+    """``table(g, lo, hi) -> (value, predecessor)``: the DP table of these partitions and steps, by the
+    uniform-partition kernel when both partitions are uniform, else by the general edge walk."""
+    h1, h2 = uniform_spacing(r1), uniform_spacing(r2)
+    if h1 is None or h2 is None:
+        return lambda g, lo, hi: _dp_table(r1, r2, g, step, lo, hi)
+    first, da, db, length = _pieces(step.tobytes(), len(step))
+    weight = h1 * np.sqrt(step[:, 1] * h2 / (step[:, 0] * h1))
+    return lambda g, lo, hi: _dp_table_uniform(g, step, lo, hi, first, da, db, length, weight)
+
+
+@functools.lru_cache(maxsize=16)
+def _pieces(key: bytes, count: int):
+    """:func:`uniform_pieces` of the steps given as bytes (made once per window and process)."""
+    return uniform_pieces(np.frombuffer(key, dtype=np.int64).reshape(count, 2))
 
 
 @numba.njit(cache=True)
@@ -275,12 +366,13 @@ def dp_surface_min(
             rotation = kabsch(np.einsum("a,akl->kl", np.diff(r1), c[diagonal, diagonal]))
         else:
             rotation = np.eye(3)
+    table = _table_function(r1, r2, step)
     best = None
     history = []
     first_path = None
     for _ in range(max_rounds):
         g = np.einsum("kl,ablk->ab", rotation, c)
-        table, pred = _dp_table(r1, r2, g, step, lo, hi)
+        _, pred = table(g, lo, hi)
         path = _backtrack(pred, step)
         if first_path is None:
             first_path = path.tobytes()
