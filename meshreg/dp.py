@@ -182,12 +182,22 @@ def _dp_table_uniform(g, step, lo, hi, first, da, db, length, weight):
             if k0 < 0 or begin >= stop:
                 continue
             edge[begin:stop] = 0.0
-            for p in range(first[s], first[s + 1]):
-                row = g[k0 + da[p]]
-                shift = db[p] - dl
-                w = length[p]
+            p, end = first[s], first[s + 1]
+            while p + 3 < end:  # four pieces per pass over the row, each added in turn (the same sums)
+                row0, row1, row2, row3 = g[k0 + da[p]], g[k0 + da[p + 1]], g[k0 + da[p + 2]], g[k0 + da[p + 3]]
+                s0, s1, s2, s3 = db[p] - dl, db[p + 1] - dl, db[p + 2] - dl, db[p + 3] - dl
+                w0, w1, w2, w3 = length[p], length[p + 1], length[p + 2], length[p + 3]
                 for l in range(begin, stop):
-                    edge[l] += w * row[l + shift]
+                    e = edge[l] + w0 * row0[l + s0]
+                    e = e + w1 * row1[l + s1]
+                    e = e + w2 * row2[l + s2]
+                    edge[l] = e + w3 * row3[l + s3]
+                p += 4
+            while p < end:
+                row0, s0, w0 = g[k0 + da[p]], db[p] - dl, length[p]
+                for l in range(begin, stop):
+                    edge[l] += w0 * row0[l + s0]
+                p += 1
             previous = best[k0]
             for l in range(begin, stop):
                 val = previous[l - dl] + weight[s] * edge[l]
@@ -198,15 +208,25 @@ def _dp_table_uniform(g, step, lo, hi, first, da, db, length, weight):
 
 
 def _backtrack(pred: np.ndarray, step: np.ndarray) -> np.ndarray:
-    k, l = pred.shape[0] - 1, pred.shape[1] - 1
-    if pred[k, l] < 0:
+    """The optimal path's nodes (P, 2), (0, 0) first, from the predecessor table."""
+    if pred[-1, -1] < 0:
         raise RuntimeError("DP found no path to the end node: widen the window or the strip")
-    path = [(k, l)]
-    while (k, l) != (0, 0):
-        dk, dl = step[pred[k, l]]
-        k, l = k - dk, l - dl
-        path.append((k, l))
-    return np.array(path[::-1], dtype=np.int64)
+    return _walk_back(pred, step)
+
+
+@numba.njit(cache=True)
+def _walk_back(pred, step):
+    k, l = pred.shape[0] - 1, pred.shape[1] - 1
+    reverse = np.empty((k + l + 1, 2), dtype=np.int64)
+    count = 0
+    while True:
+        reverse[count, 0], reverse[count, 1] = k, l
+        count += 1
+        if k == 0 and l == 0:
+            break
+        s = pred[k, l]
+        k, l = k - step[s, 0], l - step[s, 1]
+    return reverse[:count][::-1].copy()
 
 
 def _table_function(r1: np.ndarray, r2: np.ndarray, step: np.ndarray):
