@@ -27,6 +27,7 @@ from .rotation import kabsch
 DEFAULT_WINDOW = 10
 DEFAULT_DP_ROUNDS = 10
 DEFAULT_DP_TOL = 1e-9
+_SETUP = object()  # the key under which a ``seen`` dict of dp_surface_min keeps its problem's set-up
 # partitions whose intervals all equal their mean to this relative tolerance are uniform: the DP then takes each
 # edge's pieces from a table made once per step (:func:`uniform_pieces`); equal to the general edge walk to rounding
 UNIFORM_TOL = 1e-12
@@ -229,6 +230,18 @@ def _walk_back(pred, step):
     return reverse[:count][::-1].copy()
 
 
+def _setup(q1, q2, r1, r2, t, window: int, strip):
+    """What every round of one DP problem uses: the covariances C[a, b], the sum of both row norms, the steps, the
+    strip's bounds and the table function."""
+    dt = np.diff(t)
+    c = column_covariances(q1, q2, dt)
+    norms = float(np.sum(np.diff(r1)[:, None] * dt * np.sum(q1**2, -1)))
+    norms += float(np.sum(np.diff(r2)[:, None] * dt * np.sum(q2**2, -1)))
+    step = steps(min(window, max(len(r1), len(r2)) - 1))  # wider steps leave the table: the same DP, bounded cost
+    lo, hi = strip if strip is not None else strip_bounds(len(r1), len(r2), None, 0)
+    return c, norms, step, lo, hi, _table_function(r1, r2, step)
+
+
 def _table_function(r1: np.ndarray, r2: np.ndarray, step: np.ndarray):
     """``table(g, lo, hi) -> (value, predecessor)``: the DP table of these partitions and steps, by the
     uniform-partition kernel when both partitions are uniform, else by the general edge walk."""
@@ -360,7 +373,8 @@ def dp_surface_min(
         starting rotations, by the path of their first round; filled by this call. After its first round a
         call depends on nothing but that path, so a start whose first path was seen before returns that result
         (the same numbers) without its further rounds: the start search tries 29 rotations per symmetry of the
-        square, and many lead to one path.
+        square, and many lead to one path. Without a strip it also keeps the problem's set-up (covariances, steps,
+        table function), made by the first call.
 
     Returns
     -------
@@ -374,19 +388,19 @@ def dp_surface_min(
         fine_path = np.stack([idx1[coarse.path[:, 0]], idx2[coarse.path[:, 1]]], axis=-1)
         strip = strip_bounds(len(r1), len(r2), fine_path, 2 * coarsen)
         rotation = coarse.rotation
-    dt = np.diff(t)
-    c = column_covariances(q1, q2, dt)
-    norms = float(np.sum(np.diff(r1)[:, None] * dt * np.sum(q1**2, -1)))
-    norms += float(np.sum(np.diff(r2)[:, None] * dt * np.sum(q2**2, -1)))
-    step = steps(min(window, max(len(r1), len(r2)) - 1))  # wider steps leave the table: the same DP, bounded cost
-    lo, hi = strip if strip is not None else strip_bounds(len(r1), len(r2), None, 0)
+    shared = seen is not None and strip is None  # the set-up depends on the problem alone: made once per ``seen``
+    setup = seen.get(_SETUP) if shared else None
+    if setup is None:
+        setup = _setup(q1, q2, r1, r2, t, window, strip)
+        if shared:
+            seen[_SETUP] = setup
+    c, norms, step, lo, hi, table = setup
     if rotation is None:
         if q1.shape[0] == q2.shape[0]:
             diagonal = np.arange(q1.shape[0])
             rotation = kabsch(np.einsum("a,akl->kl", np.diff(r1), c[diagonal, diagonal]))
         else:
             rotation = np.eye(3)
-    table = _table_function(r1, r2, step)
     best = None
     history = []
     first_path = None
