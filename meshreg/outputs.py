@@ -11,7 +11,9 @@ Outputs in the directory ``out``:
   interactive page ``view.html``.
 
 The output place is checked before any computation, the outputs of an earlier run there are removed, and the new
-ones are written all together or not at all (:func:`meshreg.files.staged`). See docs/outputs.md.
+ones are written all together or not at all (:func:`meshreg.files.staged`). While it registers and writes, BLAS
+runs with :data:`BLAS_THREADS` threads (threadpoolctl; the process's setting is restored after). See
+docs/outputs.md.
 """
 
 from __future__ import annotations
@@ -37,6 +39,10 @@ VIEW_FILE = "view.html"
 # can pass for this run's
 OUTPUT_FILES = (RESULT_FILE, REVERSE_FILE, FIGURE_FILE, *MESH_FILES, VIEW_FILE)
 DEMO_INPUTS = ("inputs/terrain_a.ply", "inputs/terrain_b.ply")
+# BLAS threads of a registration written to files, as in the distance matrix's workers: the figure worker takes the
+# other core, and OpenBLAS's default of one thread per core made `meshreg register` on two 100k-triangle meshes about
+# twice as slow on a busy 2-core machine (OPENBLAS_NUM_THREADS unset: 10-14 s against 5-7 s)
+BLAS_THREADS = 1
 
 
 @dataclass
@@ -114,9 +120,12 @@ def write_grid_registration(
 ) -> Written:
     """Register two GridSurfaces and write ``result.npz`` and ``registration.png`` (and the reverse result) into
     the prepared directory ``out``, all together or not at all."""
+    from threadpoolctl import threadpool_limits
+
     from .pipeline import register_with
 
-    with Painter(1) as painter:
+    _set_up_numba()
+    with Painter(1) as painter, threadpool_limits(BLAS_THREADS):
         result = register_with(first, second, options, callback)
         reverse = register_with(second, first, options) if symmetric else None
         names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
@@ -136,10 +145,13 @@ def write_mesh_registration(
     """Register two meshes (:class:`meshreg.surfaces.Mesh`) and write coloured meshes, ``result.npz``, both
     figures and, with ``html``, the interactive page ``view.html``. The figures are drawn by a
     :class:`~meshreg.painter.Painter` (in worker processes where it can) while the other files are written."""
+    from threadpoolctl import threadpool_limits
+
     from .mesh.correspond import register_meshes
     from .mesh.export import colored_outputs, write_ply
 
-    with Painter(1) as painter:
+    _set_up_numba()
+    with Painter(1) as painter, threadpool_limits(BLAS_THREADS):
         mr = register_meshes(first, second, options, callback)
         result = mr.result
         title = f"E = {result.energy:.3g}"
@@ -150,9 +162,7 @@ def write_mesh_registration(
             (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
             c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
             on_second = result.correspondence()
-            # result.correspondence_on_first(), from the second's matches on the first's square already found
-            on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]
-            uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
+            # queued as soon as its data is there: the worker is still drawing registration.png
             painter.draw(
                 "plot_meshes",
                 stage / "meshes.png",
@@ -166,6 +176,9 @@ def write_mesh_registration(
                 second_to_first=np.linalg.inv(result.transform),
                 distance=result.distances() / np.sqrt(result.second.area()),
             )
+            # result.correspondence_on_first(), from the second's matches on the first's square already found
+            on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]
+            uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}
             write_ply(stage / "first.ply", v1, f1, c1)
             write_ply(stage / "second.ply", v2, f2, c2)
             write_ply(stage / "registered.ply", *registered)
@@ -183,6 +196,16 @@ def write_mesh_registration(
                 )
             painter.finish()
     return Written(result, [out / name for name in names], _mesh_notes(mr.info))
+
+
+def _set_up_numba() -> None:
+    """Run one small B-spline evaluation (a cached numba kernel every registration loads) before the figure worker
+    forks: numba's own set-up (0.2-0.5 s once per process, the first time a cached kernel is loaded) is then done
+    once, here, and inherited by the worker instead of done again there beside the registration."""
+    from .spline import GridInterpolator
+
+    nodes = np.linspace(0.0, 1.0, 4)
+    GridInterpolator(np.zeros((4, 4, 1)), nodes, nodes).values(nodes, nodes)
 
 
 def _mesh_notes(info: dict) -> list[str]:

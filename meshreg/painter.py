@@ -1,11 +1,16 @@
 """Figures drawn beside the computation: on Linux with more than one core, :class:`Painter` forks its worker
-process(es) as soon as it is made; a worker imports matplotlib (about 0.4 s) while the caller registers, then draws
-the figures it is given while the caller writes its other files. One worker draws every figure of a registration:
-it then spends the CPU time the caller would have spent, on the other core (a second worker would import matplotlib
-twice and, on a loaded 2-core machine, slow the caller more than it saves). Elsewhere (or with one core) the
-figures are drawn in the calling process by :meth:`Painter.finish` (also inside a daemonic pool worker or while other
-Python threads run, where a fork is unsafe). Either way every figure is written when
-:meth:`Painter.finish` returns, and an error drawing one is raised there.
+process(es) as soon as it is made; a worker imports matplotlib (about 0.4 s) and draws a tiny figure
+(:func:`meshreg.viz.warm_up`: fonts, the PNG writer, the mesh renderer's numba kernel; about 0.5 s that the first
+real figure would otherwise pay) while the caller registers, then draws the figures it is given while the caller
+writes its other files. ``meshreg register`` makes its painter after its own imports (numpy, numba, scipy) and
+numba's set-up, which the worker inherits instead of doing them again beside the caller (forked at the start of the
+command, the worker made the command 0.4 s slower in 3 of 4 runs on a busy 2-core machine). One worker draws every
+figure of a registration: it then spends the CPU time the caller would have spent, on the other core (a second
+worker would import matplotlib twice and, on a loaded 2-core machine, slow the caller more than it saves). Elsewhere
+(or with one core) the figures are drawn in the calling process by :meth:`Painter.finish` (also inside a daemonic
+pool worker or while other Python threads run, where a fork is unsafe). Either way every figure is written when
+:meth:`Painter.finish` returns, and an error drawing one is raised there; when the block of a painter ends by an
+exception its workers are stopped at once (SIGTERM), not left to finish their start-up or a figure.
 """
 
 from __future__ import annotations
@@ -31,10 +36,13 @@ def _may_fork() -> bool:
 
 
 def _start_worker() -> None:
-    """In a worker: leave Ctrl-C and SIGTERM to the caller (it stops the workers), then import the figures."""
+    """In a worker: leave Ctrl-C and SIGTERM to the caller (it stops the workers), then import the figures and draw
+    a tiny one (:func:`meshreg.viz.warm_up`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    from . import viz  # noqa: F401
+    from . import viz
+
+    viz.warm_up()
 
 
 def _draw(name: str, args: tuple, kwargs: dict):
@@ -52,10 +60,13 @@ class Painter:
         self._pool = None
         self._jobs: list[Future] = []
         self._queued: list[tuple] = []
+        self._workers: list = []
         if workers > 0 and _may_fork():
             context = multiprocessing.get_context("fork")
+            before = set(multiprocessing.active_children())
             self._pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker)
             self._pool.submit(int)  # the workers start now (forked ones all at once) and import matplotlib
+            self._workers = [p for p in multiprocessing.active_children() if p not in before]
 
     def draw(self, name: str, *args, **kwargs) -> None:
         """Queue ``meshreg.viz.<name>(*args, **kwargs)`` (for a worker, or for :meth:`finish` without them)."""
@@ -76,5 +87,9 @@ class Painter:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=exc[0] is None, cancel_futures=True)
+        if self._pool is None:
+            return
+        if exc[0] is not None:  # nothing more will be drawn: stop the workers now, even in their start-up
+            for worker in self._workers:
+                worker.terminate()
+        self._pool.shutdown(wait=exc[0] is None, cancel_futures=True)

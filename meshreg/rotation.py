@@ -43,6 +43,23 @@ def kabsch(h: np.ndarray) -> np.ndarray:
 _FLIP_LAST = np.array([1.0, 1.0, -1.0])  # V diag(1, 1, -1), column by column
 
 
+def kabsch_stack(h: np.ndarray) -> np.ndarray:
+    """:func:`kabsch` for a stack of matrices: the rotations (t, 3, 3) maximizing trace(R_k H_k), H (t, 3, 3).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> h = np.random.default_rng(0).normal(size=(4, 3, 3))
+    >>> bool(np.allclose(kabsch_stack(h), [kabsch(m) for m in h]))
+    True
+    """
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("nji,nkj->nik", vt, u)))
+    d[d == 0] = 1.0
+    vt[:, 2, :] *= d[:, None]
+    return np.einsum("nji,nkj->nik", vt, u)
+
+
 def angle_between(r1: np.ndarray, r2: np.ndarray) -> float | np.ndarray:
     """Angle in degrees of the rotation r1 r2^T (0 when r1 == r2); for stacks of rotations (..., 3, 3), which
     broadcast, the angles (...)."""

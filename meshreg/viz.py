@@ -10,11 +10,16 @@ backend switch, so importing this module changes nothing in a notebook.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numba
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.gridspec import GridSpec
+from matplotlib.transforms import offset_copy
+from PIL import Image
 
 # mesh panels are rendered to images with a depth buffer (:func:`render_mesh`; matplotlib's 3D axes drew one path
 # per triangle: two 100k-triangle meshes took 4 s, 1.2-2 s from copies simplified to 20000 triangles), the mesh
@@ -99,6 +104,29 @@ def plot_registration(
     path = Path(path)
     fig.savefig(path, dpi=FIGURE_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
     return path
+
+
+def warm_up() -> None:
+    """Draw a tiny figure with everything :func:`plot_registration` and :func:`plot_meshes` use (lines, a
+    rendered mesh image, a colour bar, titles, a PNG written to nowhere), so that their first call in this process
+    does not pay for matplotlib's lazy set-up (fonts, the PNG writer) and for loading the renderer's numba kernel:
+    about 0.5 s of a 100k-triangle ``meshes.png`` drawn first. A figure worker (:mod:`meshreg.painter`) runs it
+    while the caller registers."""
+    from matplotlib import cm
+
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    fig = Figure(figsize=(2, 1), dpi=20)
+    ax = fig.add_subplot(1, 2, 1)
+    ax.plot(points[:, 0], points[:, 1], "b-", label="a")
+    ax.legend(loc="upper left")
+    ax.set_title("warm", fontsize=10)
+    image = fig.add_subplot(1, 2, 2).imshow(np.eye(2), origin="lower", extent=(0, 1, 0, 1), cmap="magma")
+    fig.colorbar(image, ax=image.axes, label="warm")
+    _mesh_image(points, np.array([[0, 1, 2]]), np.full((1, 3), 0.5), 8, 8)
+    fig.colorbar(cm.ScalarMappable(cmap="viridis"), cax=fig.add_axes((0.9, 0.1, 0.05, 0.8))).set_label("warm")
+    fig.suptitle("warm")
+    fig.text(0.0, 0.0, "warm", fontsize=9)
+    fig.savefig(os.devnull, format="png", pil_kwargs={"compress_level": PNG_COMPRESSION})
 
 
 def _save(fig: Figure, path, title: str, dpi: int) -> Path:
@@ -216,18 +244,33 @@ def plot_meshes(
         panels.append((v1, f1, colors, "distance to the corresponding point"))
     count = len(panels)
     fig = Figure(figsize=(5.5 * count, 5.2), dpi=MESH_DPI)
-    fig.subplots_adjust(left=0.01, right=0.99 - 0.04 * (distance is not None), bottom=0.02, top=0.88, wspace=0.04)
-    for k, (v, f, c, name) in enumerate(panels):
-        ax = fig.add_subplot(1, count, k + 1)
-        _draw_mesh(ax, (v - v1.mean(axis=0)) @ view.T, f, c, name)
+    right = 0.99 - 0.06 * (distance is not None)  # room for the colour bar
+    bottom, top = 0.02, 0.88
+    _, _, lefts, rights = GridSpec(
+        1, count, left=0.01, right=right, bottom=bottom, top=top, wspace=0.04
+    ).get_grid_positions(fig)
+    width, height = int(fig.bbox.width), int(fig.bbox.height)
+    above = offset_copy(fig.transFigure, fig=fig, y=6, units="points")  # where matplotlib puts an axes title
+    places = []
+    for k, (*_, name) in enumerate(panels):
+        x0, x1, y0 = int(round(lefts[k] * width)), int(rights[k] * width), int(round((1 - top) * height))
+        places.append((slice(y0, int((1 - bottom) * height)), slice(x0, x1)))
+        fig.text(0.5 * (lefts[k] + rights[k]), top, name, transform=above, ha="center", va="baseline", fontsize=10)
     if distance is not None:
         from matplotlib import cm
 
-        bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), ax=ax, shrink=0.6, pad=0.02)
-        bar.set_label("fraction of sqrt(area)")
+        bar = fig.add_axes((right + 0.005, bottom + 0.2 * (top - bottom), 0.008, 0.6 * (top - bottom)))
+        fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), cax=bar).set_label("fraction of sqrt(area)")
     fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
+    # the text drawn by matplotlib, the panels' pixels put in place (nothing resampled, no axes to lay out)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    pixels = np.array(canvas.buffer_rgba())
+    for (rows, columns), (v, f, c, _) in zip(places, panels, strict=True):
+        image = _mesh_image((v - v1.mean(axis=0)) @ view.T, f, c, columns.stop - columns.start, rows.stop - rows.start)
+        pixels[rows, columns, :3] = np.round(image * 255)
     path = Path(path)
-    fig.savefig(path, dpi=MESH_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
+    Image.fromarray(pixels).save(path, format="png", compress_level=PNG_COMPRESSION)
     return path
 
 
@@ -247,19 +290,15 @@ def _distance_colors(distance: np.ndarray, faces: np.ndarray):
     return norm, colors
 
 
-def _draw_mesh(ax, points: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, title: str) -> None:
-    """Faces in their colours, lit by LIGHT (Lambert, with an ambient floor), seen by an orthographic camera at
-    ELEVATION and AZIMUTH: rendered to an image the size of the axes (:func:`render_mesh`), shown without axes."""
+def _mesh_image(points: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, width: int, height: int) -> np.ndarray:
+    """An RGB image (height, width, 3) of faces in their colours, lit by LIGHT (Lambert, with an ambient floor), seen
+    by an orthographic camera at ELEVATION and AZIMUTH (:func:`render_mesh`)."""
     tri = points[faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     shade = 0.45 + 0.55 * np.abs(normal @ LIGHT)  # both sides lit: the winding of a scan is arbitrary
     colors = np.clip(face_colors * shade[:, None], 0, 1)
-    box = ax.get_position()
-    width, height = ax.figure.get_size_inches() * ax.figure.dpi * np.array([box.width, box.height])
-    ax.imshow(render_mesh(points @ camera(ELEVATION, AZIMUTH).T, faces, colors, int(width), int(height)))
-    ax.set_axis_off()
-    ax.set_title(title, fontsize=10)
+    return render_mesh(points @ camera(ELEVATION, AZIMUTH).T, faces, colors, width, height)
 
 
 def camera(elevation: float, azimuth: float) -> np.ndarray:

@@ -312,6 +312,27 @@ def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_the
             painter.finish()
 
 
+def test_a_painter_left_by_an_error_stops_its_worker_at_once():
+    import time
+
+    from meshreg.painter import Painter
+
+    tic = time.perf_counter()
+    with pytest.raises(RuntimeError), Painter(1) as painter:
+        workers = list(painter._workers)
+        raise RuntimeError("bad input found after the fork")
+    for worker in workers:  # stopped in its start-up (matplotlib's import, the warm-up figure), not left to end it
+        worker.join(timeout=10)
+        assert not worker.is_alive()
+    assert time.perf_counter() - tic < 10
+
+
+def test_the_figures_warm_up_draws_to_nowhere():
+    from meshreg import viz
+
+    viz.warm_up()
+
+
 def test_the_painter_does_not_fork_while_another_thread_runs():
     import threading
 
@@ -332,3 +353,26 @@ def test_the_first_run_check_looks_at_kernels_that_exist():
     package = Path(cli.__file__).parent
     for name in cli.CORE_KERNELS:
         assert "@numba.njit(cache=True" in (package / f"{name}.py").read_text(), name
+
+
+def test_a_registration_written_to_files_runs_blas_on_one_thread(tmp_path):
+    """The figure worker takes the other core: BLAS threads are limited while the command registers and writes,
+    and the caller's setting comes back after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from meshreg.outputs import register_files
+    from meshreg.samples import paper_pairs
+
+    pair = paper_pairs(21, 21)[6]
+    np.save(tmp_path / "a.npy", pair.first.points)
+    np.save(tmp_path / "b.npy", pair.second.points)
+    seen = []
+
+    def threads(*_):
+        seen.append(max(pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"))
+
+    with threadpool_limits(2, user_api="blas"):
+        register_files(tmp_path / "a.npy", tmp_path / "b.npy", tmp_path / "out", callback=threads)
+        after = max(pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas")
+    assert seen and set(seen) == {1}
+    assert after == 2

@@ -362,3 +362,25 @@ def test_rendered_mesh_shows_the_nearest_triangle_where_it_covers_the_image():
     assert np.all(alone[inner, inner] == [0, 0, 1])
     covered = np.all(alone == [0, 0, 1], axis=2).mean()
     assert covered == pytest.approx((1 - 2 * RENDER_MARGIN) ** 2, abs=0.03)
+
+
+def test_mesh_figure_puts_each_panel_in_its_place(tmp_path):
+    """meshes.png of a red first and a blue second square, distances 0: the first third of the picture holds red
+    pixels and no blue, the second blue and no red, the third viridis's darkest colour (distance 0)."""
+    from PIL import Image
+
+    from meshreg.viz import MESH_DPI, plot_meshes
+
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    red, blue = np.tile([1.0, 0.0, 0.0], (4, 1)), np.tile([0.0, 0.0, 1.0], (4, 1))
+    plot_meshes(tmp_path / "m.png", points, faces, red, points, faces, blue, distance=np.zeros(4))
+    image = np.asarray(Image.open(tmp_path / "m.png").convert("RGB")).astype(int)
+    assert image.shape == (round(5.2 * MESH_DPI), round(3 * 5.5 * MESH_DPI), 3)
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    reddish, bluish = (r > g + 60) & (r > b + 60), (b > g + 60) & (b > r + 60)
+    one, two = (round(x * image.shape[1]) for x in (0.315, 0.625))  # between the panels (0.31-0.32, 0.62-0.63)
+    assert reddish[:, :one].sum() > 10000 and not bluish[:, :one].any()
+    assert bluish[:, one:two].sum() > 10000 and not reddish[:, one:two].any()
+    dark_purple = (b > r) & (r > g + 30) & (b < 100)  # viridis(0) = (68, 1, 84), lit by 0.45-1
+    assert dark_purple[:, two:].sum() > 10000

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ..rotation import angle_between
+from ..rotation import angle_between, kabsch_stack
 from ..search import cube_rotations
 from .surface import NORMAL_AGREEMENT, Surface, cube_labels, transform_normals, transform_points
 
@@ -200,13 +200,7 @@ def _fpfh(p, n, idx, bins):
 def _kabsch_batch(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Rigid 4 x 4 matrices (t, 4, 4) taking point triplets p (t, 3, 3) onto q (t, 3, 3) in least squares."""
     pc, qc = p.mean(axis=1, keepdims=True), q.mean(axis=1, keepdims=True)
-    h = np.einsum("tki,tkj->tij", p - pc, q - qc)
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("tji,tkj->tik", vt, u)))
-    d[d == 0] = 1.0
-    fix = np.ones((len(p), 3))
-    fix[:, 2] = d
-    rot = np.einsum("tji,tj,tkj->tik", vt, fix, u)
+    rot = kabsch_stack(np.einsum("tki,tkj->tij", p - pc, q - qc))
     out = np.tile(np.eye(4), (len(p), 1, 1))
     out[:, :3, :3] = rot
     out[:, :3, 3] = qc[:, 0] - np.einsum("tij,tj->ti", rot, pc[:, 0])

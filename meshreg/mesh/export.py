@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .correspond import MeshRegistration
+from .ply import write_ply_bytes
 
 UNMATCHED = np.array([0.6, 0.6, 0.6])  # colour of input vertices dropped by the cleanup
 # colours of the square's corners (0,0), (1,0), (1,1), (0,1), blended bilinearly
@@ -39,11 +40,9 @@ def grid_faces(m: int, n: int) -> np.ndarray:
 
 
 def write_ply(path, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray) -> None:
-    """A PLY mesh with per-vertex RGB colours (colours in [0, 1])."""
-    import trimesh
-
+    """A binary PLY mesh with per-vertex RGB colours (colours in [0, 1]; :func:`meshreg.mesh.ply.write_ply_bytes`)."""
     rgba = np.hstack([np.clip(colors, 0, 1) * 255, np.full((len(colors), 1), 255)]).astype(np.uint8)
-    trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False).export(Path(path))
+    Path(path).write_bytes(write_ply_bytes(vertices, faces, rgba))
 
 
 def registered_mesh(mr: MeshRegistration):

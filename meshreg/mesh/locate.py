@@ -14,12 +14,26 @@ BUCKETS = 64  # the square is cut into BUCKETS x BUCKETS cells to find candidate
 
 
 @numba.njit(cache=True)
+def uv_triangle(uv, faces, f):
+    """Corners (ax, ay, bx, by, cx, cy) of face f in the uv layout and twice its signed area (det)."""
+    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+    ax, ay, bx, by, cx, cy = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1], uv[c, 0], uv[c, 1]
+    return ax, ay, bx, by, cx, cy, (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+
+
+@numba.njit(cache=True)
+def barycentric(ax, ay, bx, by, cx, cy, det, px, py):
+    """Barycentric coordinates (l0, l1, l2) of the point (px, py) in the triangle of :func:`uv_triangle`."""
+    l1 = ((px - ax) * (cy - ay) - (cx - ax) * (py - ay)) / det
+    l2 = ((bx - ax) * (py - ay) - (px - ax) * (by - ay)) / det
+    return 1.0 - l1 - l2, l1, l2
+
+
+@numba.njit(cache=True)
 def _locate(uv, faces, points, order, starts, buckets, tol, face_out, bary_out, depth):
     n = buckets
     for f in range(faces.shape[0]):
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-        ax, ay, bx, by, cx, cy = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1], uv[c, 0], uv[c, 1]
-        det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+        ax, ay, bx, by, cx, cy, det = uv_triangle(uv, faces, f)
         if abs(det) < 1e-300:
             continue
         i0 = max(0, min(n - 1, int((min(ax, bx, cx) - tol) * n)))
@@ -32,9 +46,7 @@ def _locate(uv, faces, points, order, starts, buckets, tol, face_out, bary_out, 
                 for k in range(starts[cell], starts[cell + 1]):
                     p = order[k]
                     px, py = points[p, 0], points[p, 1]
-                    l1 = ((px - ax) * (cy - ay) - (cx - ax) * (py - ay)) / det
-                    l2 = ((bx - ax) * (py - ay) - (px - ax) * (by - ay)) / det
-                    l0 = 1.0 - l1 - l2
+                    l0, l1, l2 = barycentric(ax, ay, bx, by, cx, cy, det, px, py)
                     worst = min(l0, l1, l2)
                     if worst >= -tol and worst > depth[p]:
                         depth[p] = worst

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..grid import GridSurface
+from .locate import barycentric, uv_triangle
 
 DEFAULT_GRID = 101
 DEFAULT_ANTIALIAS = 3  # as Options.antialias
@@ -46,9 +47,7 @@ def _node_range(nodes, low, high):
 def _rasterize(uv, faces, values, r, t, out, hit, tol):
     m, n = r.shape[0], t.shape[0]
     for f in range(faces.shape[0]):
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
-        ax, ay, bx, by, cx, cy = uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1], uv[c, 0], uv[c, 1]
-        det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+        ax, ay, bx, by, cx, cy, det = uv_triangle(uv, faces, f)
         if abs(det) < 1e-300:
             continue
         i0, i1 = _node_range(r, min(ax, bx, cx) - tol, max(ax, bx, cx) + tol)
@@ -56,12 +55,11 @@ def _rasterize(uv, faces, values, r, t, out, hit, tol):
         for i in range(i0, min(i1, m)):
             for j in range(j0, min(j1, n)):
                 px, py = r[i], t[j]
-                l1 = ((px - ax) * (cy - ay) - (cx - ax) * (py - ay)) / det
-                l2 = ((bx - ax) * (py - ay) - (px - ax) * (by - ay)) / det
-                l0 = 1.0 - l1 - l2
+                l0, l1, l2 = barycentric(ax, ay, bx, by, cx, cy, det, px, py)
                 worst = min(l0, l1, l2)
                 if worst >= -tol and worst > hit[i, j]:
                     hit[i, j] = worst
+                    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
                     for k in range(values.shape[1]):
                         out[i, j, k] = l0 * values[a, k] + l1 * values[b, k] + l2 * values[c, k]
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -13,6 +14,7 @@ from ..files import MESH_SUFFIXES, existing_file
 from ..grid import check_scale, coordinates
 from .boundary import sharp_corners
 from .graph import edge_table, face_components, triangle_areas
+from .ply import read_ply
 
 # a mesh whose vertices sit further from the origin than this many times its size has lost the digits of its
 # shape if it was stored in float32 (7 digits): its triangles collapse
@@ -22,33 +24,40 @@ FAR_FROM_ORIGIN = 1e4
 def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (n, 3) and faces (m, 3) of a mesh file, vertex order kept (trimesh, ``process=False``).
 
-    OBJ files are read without splitting vertices at texture or normal seams (a textured scan would
+    Binary PLY files of vertices and triangles are read by :func:`meshreg.mesh.ply.read_ply`, other files by
+    trimesh. OBJ files are read without splitting vertices at texture or normal seams (a textured scan would
     otherwise fall apart into pieces) and in file order. STL and glTF/GLB files, which repeat vertices
     along seams or per triangle, have coincident vertices welded.
     """
-    import trimesh
-
     path = existing_file(path)
     suffix = path.suffix.lower()
     if suffix not in MESH_SUFFIXES:
         raise InputError(
             f"{path}: unknown mesh file type {suffix or '(no suffix)'!r}: meshes are {' '.join(MESH_SUFFIXES)}"
         )
-    options = {"merge_tex": True, "merge_norm": True, "maintain_order": True} if suffix == ".obj" else {}
     try:
-        mesh = trimesh.load(path, process=False, force="mesh", **options)
+        read = read_ply(path) if suffix == ".ply" else None
+        vertices, faces = read if read is not None else _read_with_trimesh(path, suffix)
     except MemoryError:
         raise InputError(f"{path}: too large to read into memory") from None
     except Exception as err:  # trimesh raises many types on bad files
         words = str(err).replace(str(path), "").strip(" :'\"")
         raise InputError(f"{path}: cannot read it as a {suffix} mesh ({type(err).__name__}: {words})") from None
-    if suffix in (".stl", ".glb", ".gltf") and len(getattr(mesh, "faces", [])):
-        mesh.merge_vertices()  # these formats repeat vertices along seams or per triangle: weld them
-    vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=float)
-    faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
     if len(vertices) == 0 or len(faces) == 0:
         raise InputError(f"{path}: the mesh is empty (no triangles)")
     return vertices, faces
+
+
+def _read_with_trimesh(path: Path, suffix: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and faces of a mesh file as trimesh reads it (``process=False``; see :func:`load_mesh`)."""
+    import trimesh
+
+    options = {"merge_tex": True, "merge_norm": True, "maintain_order": True} if suffix == ".obj" else {}
+    mesh = trimesh.load(path, process=False, force="mesh", **options)
+    if suffix in (".stl", ".glb", ".gltf") and len(getattr(mesh, "faces", [])):
+        mesh.merge_vertices()  # these formats repeat vertices along seams or per triangle: weld them
+    vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=float)
+    return vertices, np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
 
 
 @dataclass

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..rotation import kabsch_stack
 from .align import rigid_step
 from .harmonic import factorize
 from .surface import NORMAL_AGREEMENT, Surface, transform_points, vertex_normals
@@ -30,12 +31,7 @@ def _rotations(rest_edges: np.ndarray, current: np.ndarray, ends: sp.csr_matrix,
     """Per vertex, the rotation (n, 3, 3) that best turns its rest edges (e, 3) into its current ones (Kabsch);
     ``ends`` (n, e) is 1 where a vertex is an end of an edge."""
     outer = np.einsum("ea,eb->eab", rest_edges, current[i] - current[j])
-    cov = (ends @ outer.reshape(len(outer), 9)).reshape(-1, 3, 3)
-    u, _, vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(np.einsum("nji,nkj->nik", vt, u)))
-    d[d == 0] = 1.0
-    vt[:, 2, :] *= d[:, None]
-    return np.einsum("nji,nkj->nik", vt, u)
+    return kabsch_stack((ends @ outer.reshape(len(outer), 9)).reshape(-1, 3, 3))
 
 
 def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarray:
