@@ -33,13 +33,20 @@ class _Ordering:
         j = np.arange(k) + np.arange(self.band + 1)[:, None]  # row j + d of the ordered corner, column j
         self.inside = j < k
         self.flat = self.order[np.where(self.inside, j, 0)] * matrix.shape[1] + self.order
+        self.last = None  # (matrix, its lower band form): the last matrix seen, as given (not to be changed after)
 
     def lower(self, matrix: np.ndarray, k: int) -> np.ndarray | None:
         """The lower band form (band + 1, k) of the top left (k, k) corner of a contiguous (n, n) ``matrix`` in this
-        order; None when the corner has non-zero entries outside the band (found by counting them)."""
+        order (a new array); None when the corner has non-zero entries outside the band (found by counting them).
+        The last matrix's form is kept: a Levenberg-Marquardt step solves with one matrix and several shifts."""
+        if self.last is not None and self.last[0] is matrix:
+            return self.last[1].copy()
         lower = np.where(self.inside, matrix.ravel().take(self.flat), 0.0)
         inside = 2 * np.count_nonzero(lower) - np.count_nonzero(lower[0])
-        return lower if inside == np.count_nonzero(matrix[:k, :k]) else None
+        if inside != np.count_nonzero(matrix[:k, :k]):
+            return None
+        self.last = (matrix, lower.copy())
+        return lower
 
 
 _ORDERINGS: dict[tuple[int, int], _Ordering] = {}  # per (n, k), the last ordering: the next matrix is tried on it

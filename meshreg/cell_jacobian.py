@@ -88,18 +88,20 @@ def _times_dense(blocks, cols, fields, lo, hi, extra, out):
     row u of ``fields`` is zero outside the columns [lo[u], hi[u])."""
     nf = fields.shape[1]
     for cell in range(blocks.shape[0]):
+        row = 3 * cell
         for k in range(3):
-            row = 3 * cell + k
             for f in range(nf):
-                out[row, f] = 0.0
+                out[row + k, f] = 0.0
             for e in range(extra.shape[1]):
-                out[row, nf + e] = extra[row, e]
-            for a in range(8):
-                w = blocks[cell, k, a]
-                if w != 0.0:
-                    source = cols[cell, a]
-                    for f in range(lo[source], hi[source]):
-                        out[row, f] += w * fields[source, f]
+                out[row + k, nf + e] = extra[row + k, e]
+        for a in range(8):  # each row of fields read once for the cell's 3 rows
+            w0, w1, w2 = blocks[cell, 0, a], blocks[cell, 1, a], blocks[cell, 2, a]
+            source = cols[cell, a]
+            for f in range(lo[source], hi[source]):
+                x = fields[source, f]
+                out[row, f] += w0 * x
+                out[row + 1, f] += w1 * x
+                out[row + 2, f] += w2 * x
 
 
 @numba.njit(cache=True)

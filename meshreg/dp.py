@@ -15,6 +15,7 @@ Bernal & Lawrence, Section 4, Step 1 of the outline (Procedure DP-surface-min).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from math import gcd
 
@@ -26,6 +27,10 @@ from .rotation import kabsch
 DEFAULT_WINDOW = 10
 DEFAULT_DP_ROUNDS = 10
 DEFAULT_DP_TOL = 1e-9
+_SETUP = object()  # the key under which a ``seen`` dict of dp_surface_min keeps its problem's set-up
+# partitions whose intervals all equal their mean to this relative tolerance are uniform: the DP then takes each
+# edge's pieces from a table made once per step (:func:`uniform_pieces`); equal to the general edge walk to rounding
+UNIFORM_TOL = 1e-12
 
 
 def steps(window: int) -> np.ndarray:
@@ -123,16 +128,135 @@ def _dp_table(r1, s2, g, step, lo, hi):
     return best, pred
 
 
+def uniform_pieces(step: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pieces of every step's edge when both partitions are uniform: they depend on the step alone.
+
+    The edge (k0, l0) -> (k0 + dk, l0 + dl) crosses the lines of the first partition at k0 + 1, ..., and those of
+    the second at k0 + b dk / dl (in units of the first partition's spacing); with gcd(dk, dl) = 1 no two crossings
+    inside the edge coincide, so it has dk + dl - 1 pieces.
+
+    Returns
+    -------
+    first : ndarray (S + 1,)
+        Step s owns pieces ``first[s]:first[s + 1]``.
+    da, db : ndarray of int
+        Each piece's cell, relative to (k0, l0).
+    length : ndarray
+        Each piece's length along r, in units of the first partition's spacing.
+    """
+    first, da, db, length = [0], [], [], []
+    for dk, dl in step:
+        cuts = np.unique(np.r_[np.arange(dk + 1), np.arange(dl + 1) * dk / dl])
+        middle = 0.5 * (cuts[1:] + cuts[:-1])
+        da += list(np.floor(middle).astype(np.int64))
+        db += list(np.floor(middle * dl / dk).astype(np.int64))
+        length += list(np.diff(cuts))
+        first.append(len(length))
+    return np.array(first), np.array(da, dtype=np.int64), np.array(db, dtype=np.int64), np.array(length)
+
+
+def uniform_spacing(r: np.ndarray) -> float | None:
+    """The spacing of a uniform partition (every interval equal to UNIFORM_TOL, relative), else None."""
+    d = np.diff(r)
+    mean = (r[-1] - r[0]) / len(d)
+    return float(mean) if np.all(np.abs(d - mean) <= UNIFORM_TOL * mean) else None
+
+
+@numba.njit(cache=True)
+def _dp_table_uniform(g, step, lo, hi, first, da, db, length, weight):
+    """:func:`_dp_table` on uniform partitions: each edge's cross term is ``weight[s]`` times the sum of its
+    pieces' lengths times g of their cells (:func:`uniform_pieces`), without locating its breakpoints; for one k
+    and one step, the edges to every l of the row are summed together (contiguous in g: vectorized)."""
+    na, nb = g.shape[0] + 1, g.shape[1] + 1
+    best = np.full((na, nb), -np.inf)
+    pred = np.full((na, nb), -1, dtype=np.int64)
+    best[0, 0] = 0.0
+    edge = np.empty(nb)
+    for k in range(1, na):
+        start, stop = max(lo[k], 1), hi[k] + 1
+        top = best[k]
+        arg = pred[k]
+        for s in range(step.shape[0]):
+            k0 = k - step[s, 0]
+            dl = step[s, 1]
+            begin = max(start, dl)
+            if k0 < 0 or begin >= stop:
+                continue
+            edge[begin:stop] = 0.0
+            p, end = first[s], first[s + 1]
+            while p + 3 < end:  # four pieces per pass over the row, each added in turn (the same sums)
+                row0, row1, row2, row3 = g[k0 + da[p]], g[k0 + da[p + 1]], g[k0 + da[p + 2]], g[k0 + da[p + 3]]
+                s0, s1, s2, s3 = db[p] - dl, db[p + 1] - dl, db[p + 2] - dl, db[p + 3] - dl
+                w0, w1, w2, w3 = length[p], length[p + 1], length[p + 2], length[p + 3]
+                for l in range(begin, stop):
+                    e = edge[l] + w0 * row0[l + s0]
+                    e = e + w1 * row1[l + s1]
+                    e = e + w2 * row2[l + s2]
+                    edge[l] = e + w3 * row3[l + s3]
+                p += 4
+            while p < end:
+                row0, s0, w0 = g[k0 + da[p]], db[p] - dl, length[p]
+                for l in range(begin, stop):
+                    edge[l] += w0 * row0[l + s0]
+                p += 1
+            previous = best[k0]
+            for l in range(begin, stop):
+                val = previous[l - dl] + weight[s] * edge[l]
+                if val > top[l]:
+                    top[l] = val
+                    arg[l] = s
+    return best, pred
+
+
 def _backtrack(pred: np.ndarray, step: np.ndarray) -> np.ndarray:
-    k, l = pred.shape[0] - 1, pred.shape[1] - 1
-    if pred[k, l] < 0:
+    """The optimal path's nodes (P, 2), (0, 0) first, from the predecessor table."""
+    if pred[-1, -1] < 0:
         raise RuntimeError("DP found no path to the end node: widen the window or the strip")
-    path = [(k, l)]
-    while (k, l) != (0, 0):
-        dk, dl = step[pred[k, l]]
-        k, l = k - dk, l - dl
-        path.append((k, l))
-    return np.array(path[::-1], dtype=np.int64)
+    return _walk_back(pred, step)
+
+
+@numba.njit(cache=True)
+def _walk_back(pred, step):
+    k, l = pred.shape[0] - 1, pred.shape[1] - 1
+    reverse = np.empty((k + l + 1, 2), dtype=np.int64)
+    count = 0
+    while True:
+        reverse[count, 0], reverse[count, 1] = k, l
+        count += 1
+        if k == 0 and l == 0:
+            break
+        s = pred[k, l]
+        k, l = k - step[s, 0], l - step[s, 1]
+    return reverse[:count][::-1].copy()
+
+
+def _setup(q1, q2, r1, r2, t, window: int, strip):
+    """What every round of one DP problem uses: the covariances C[a, b], the sum of both row norms, the steps, the
+    strip's bounds and the table function."""
+    dt = np.diff(t)
+    c = column_covariances(q1, q2, dt)
+    norms = float(np.sum(np.diff(r1)[:, None] * dt * np.sum(q1**2, -1)))
+    norms += float(np.sum(np.diff(r2)[:, None] * dt * np.sum(q2**2, -1)))
+    step = steps(min(window, max(len(r1), len(r2)) - 1))  # wider steps leave the table: the same DP, bounded cost
+    lo, hi = strip if strip is not None else strip_bounds(len(r1), len(r2), None, 0)
+    return c, norms, step, lo, hi, _table_function(r1, r2, step)
+
+
+def _table_function(r1: np.ndarray, r2: np.ndarray, step: np.ndarray):
+    """``table(g, lo, hi) -> (value, predecessor)``: the DP table of these partitions and steps, by the
+    uniform-partition kernel when both partitions are uniform, else by the general edge walk."""
+    h1, h2 = uniform_spacing(r1), uniform_spacing(r2)
+    if h1 is None or h2 is None:
+        return lambda g, lo, hi: _dp_table(r1, r2, g, step, lo, hi)
+    first, da, db, length = _pieces(step.tobytes(), len(step))
+    weight = h1 * np.sqrt(step[:, 1] * h2 / (step[:, 0] * h1))
+    return lambda g, lo, hi: _dp_table_uniform(g, step, lo, hi, first, da, db, length, weight)
+
+
+@functools.lru_cache(maxsize=16)
+def _pieces(key: bytes, count: int):
+    """:func:`uniform_pieces` of the steps given as bytes (made once per window and process)."""
+    return uniform_pieces(np.frombuffer(key, dtype=np.int64).reshape(count, 2))
 
 
 @numba.njit(cache=True)
@@ -249,7 +373,8 @@ def dp_surface_min(
         starting rotations, by the path of their first round; filled by this call. After its first round a
         call depends on nothing but that path, so a start whose first path was seen before returns that result
         (the same numbers) without its further rounds: the start search tries 29 rotations per symmetry of the
-        square, and many lead to one path.
+        square, and many lead to one path. Without a strip it also keeps the problem's set-up (covariances, steps,
+        table function), made by the first call.
 
     Returns
     -------
@@ -263,12 +388,13 @@ def dp_surface_min(
         fine_path = np.stack([idx1[coarse.path[:, 0]], idx2[coarse.path[:, 1]]], axis=-1)
         strip = strip_bounds(len(r1), len(r2), fine_path, 2 * coarsen)
         rotation = coarse.rotation
-    dt = np.diff(t)
-    c = column_covariances(q1, q2, dt)
-    norms = float(np.sum(np.diff(r1)[:, None] * dt * np.sum(q1**2, -1)))
-    norms += float(np.sum(np.diff(r2)[:, None] * dt * np.sum(q2**2, -1)))
-    step = steps(min(window, max(len(r1), len(r2)) - 1))  # wider steps leave the table: the same DP, bounded cost
-    lo, hi = strip if strip is not None else strip_bounds(len(r1), len(r2), None, 0)
+    shared = seen is not None and strip is None  # the set-up depends on the problem alone: made once per ``seen``
+    setup = seen.get(_SETUP) if shared else None
+    if setup is None:
+        setup = _setup(q1, q2, r1, r2, t, window, strip)
+        if shared:
+            seen[_SETUP] = setup
+    c, norms, step, lo, hi, table = setup
     if rotation is None:
         if q1.shape[0] == q2.shape[0]:
             diagonal = np.arange(q1.shape[0])
@@ -280,7 +406,7 @@ def dp_surface_min(
     first_path = None
     for _ in range(max_rounds):
         g = np.einsum("kl,ablk->ab", rotation, c)
-        table, pred = _dp_table(r1, r2, g, step, lo, hi)
+        _, pred = table(g, lo, hi)
         path = _backtrack(pred, step)
         if first_path is None:
             first_path = path.tobytes()

@@ -34,8 +34,13 @@ def kabsch(h: np.ndarray) -> np.ndarray:
     True
     """
     u, _, vt = np.linalg.svd(h)
-    d = 1.0 if np.linalg.det(vt.T @ u.T) >= 0 else -1.0
-    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    v = vt.T
+    if np.linalg.det(v @ u.T) < 0:
+        v = v * _FLIP_LAST
+    return v @ u.T
+
+
+_FLIP_LAST = np.array([1.0, 1.0, -1.0])  # V diag(1, 1, -1), column by column
 
 
 def kabsch_stack(h: np.ndarray) -> np.ndarray:

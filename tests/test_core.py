@@ -5,7 +5,7 @@ import scipy.sparse as sp
 from meshreg.cell_jacobian import CellJacobian, gram_pattern
 from meshreg.descent import max_step
 from meshreg.diffeo import corner_areas, identity, is_valid
-from meshreg.dp import dp_surface_min
+from meshreg.dp import _dp_table, _table_function, dp_surface_min, steps, strip_bounds, uniform_pieces
 from meshreg.fields import bspline_basis, node_basis, riseth_basis
 from meshreg.normal_system import NodeSystem
 from meshreg.objective import Objective
@@ -147,6 +147,32 @@ def test_dp_reproduces_specification(pairs101, name, expected):
     assert np.all(np.diff(result.history) <= 1e-12) or len(result.history) <= 2
     if pair.same_shape and name.endswith("g1"):  # DP sees perturbations along r only
         assert np.allclose(result.rotation, pair.rotation, atol=0.01)
+
+
+@pytest.mark.parametrize("na, nb, radius", [(31, 31, 0), (21, 34, 0), (40, 40, 6)])
+def test_dp_table_on_uniform_partitions_equals_the_edge_walk(na, nb, radius):
+    """The DP table of uniform partitions (edge pieces from a table per step) is the general edge walk's, to
+    rounding, with the same predecessors; whole tables and strips, equal and unequal spacings."""
+    rng = np.random.default_rng(na + nb)
+    r1, r2 = np.linspace(0, 1, na), np.linspace(0, 1, nb)
+    g, step = rng.random((na - 1, nb - 1)), steps(7)
+    path = np.stack([np.arange(na), np.round(np.linspace(0, nb - 1, na))], axis=-1).astype(np.int64)
+    lo, hi = strip_bounds(na, nb, path if radius else None, radius)
+    value, pred = _dp_table(r1, r2, g, step, lo, hi)
+    fast_value, fast_pred = _table_function(r1, r2, step)(g, lo, hi)
+    reached = np.isfinite(value)
+    assert np.array_equal(reached, np.isfinite(fast_value)) and np.array_equal(pred, fast_pred)
+    assert np.allclose(fast_value[reached], value[reached], rtol=1e-14, atol=1e-14)
+
+
+def test_uniform_pieces_cover_each_edge_once():
+    """Step (dk, dl) with gcd 1: dk + dl - 1 pieces of total length dk, each in a cell of the edge's box."""
+    step = steps(5)
+    first, da, db, length = uniform_pieces(step)
+    for s, (dk, dl) in enumerate(step):
+        part = slice(first[s], first[s + 1])
+        assert first[s + 1] - first[s] == dk + dl - 1 and length[part].sum() == pytest.approx(dk)
+        assert np.all((0 <= da[part]) & (da[part] < dk) & (0 <= db[part]) & (db[part] < dl))
 
 
 def test_node_system_solves_the_selected_bordered_normal_equations():
