@@ -1,4 +1,5 @@
-"""Linear-time graph kernels of triangle meshes (numba): edge table, connected components, triangle areas.
+"""Linear-time kernels of triangle meshes (numba): edge table, connected components, triangle normals and areas,
+side lengths.
 
 Sorting 3m edge keys (``np.unique``) or building an n x n sparse adjacency for ``connected_components`` costs
 O(m log m) and several copies of the mesh; bucketing edges by their lower vertex and a union-find over the faces
@@ -111,15 +112,53 @@ def face_components(faces: np.ndarray, n: int) -> tuple[np.ndarray, int]:
 
 
 @numba.njit(cache=True)
+def _cross(v: np.ndarray, a: int, b: int, c: int) -> tuple[float, float, float]:
+    """(b - a) x (c - a) for the vertices a, b, c of ``v`` (n, 3), as ``np.cross`` computes it."""
+    x1, y1, z1 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+    x2, y2, z2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+    return y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+
+
+@numba.njit(cache=True)
 def _areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     out = np.empty(f.shape[0])
     for t in range(f.shape[0]):
-        a, b, c = f[t, 0], f[t, 1], f[t, 2]
-        x1, y1, z1 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-        x2, y2, z2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-        cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+        cx, cy, cz = _cross(v, f[t, 0], f[t, 1], f[t, 2])
         out[t] = 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
     return out
+
+
+@numba.njit(cache=True)
+def _normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    out = np.empty((f.shape[0], 3))
+    for t in range(f.shape[0]):
+        out[t, 0], out[t, 1], out[t, 2] = _cross(v, f[t, 0], f[t, 1], f[t, 2])
+    return out
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unnormalized normals (m, 3) of the triangles: twice their area times the unit normal (the cross product of
+    their sides from the first corner, as ``np.cross`` computes it)."""
+    return _normals(np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64))
+
+
+@numba.njit(cache=True)
+def _side_lengths(points: np.ndarray, faces: np.ndarray, sides: int) -> np.ndarray:
+    out = np.empty(sides * faces.shape[0])
+    for t in range(faces.shape[0]):
+        for k in range(sides):
+            a, b = faces[t, k], faces[t, (k + 1) % 3]
+            total = 0.0
+            for d in range(points.shape[1]):
+                total += (points[a, d] - points[b, d]) ** 2
+            out[sides * t + k] = np.sqrt(total)
+    return out
+
+
+def side_lengths(points: np.ndarray, faces: np.ndarray, sides: int = 3) -> np.ndarray:
+    """Lengths (sides * m,) of the first ``sides`` sides (corner k to corner k + 1) of every triangle (m, 3), for
+    points (n, d) in any dimension (3D vertices, uv on the square)."""
+    return _side_lengths(np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(faces, dtype=np.int64), sides)
 
 
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

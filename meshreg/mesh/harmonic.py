@@ -15,6 +15,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError
 from .boundary import sharp_corners
+from .graph import side_lengths
 from .topology import DiskMesh, loop_segments, triangle_areas
 
 # SuperLU's relaxed supernode size and panel width (its defaults: 5 and 10): a mesh Laplacian's elimination tree has
@@ -224,20 +225,7 @@ def arc_fraction(disk: DiskMesh, position: int) -> float:
 def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
     """Median length of a mesh's edges on the square (its resolution there), for faces (m, 3) and uv (n, 2): over
     the three sides of every triangle (an inner edge counts twice)."""
-    lengths = _side_lengths(np.ascontiguousarray(faces, dtype=np.int64), np.ascontiguousarray(uv, dtype=float))
-    return float(np.median(lengths))
-
-
-@numba.njit(cache=True)
-def _side_lengths(faces: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Lengths (3m,) of the sides of the triangles (m, 3) on the plane (uv (n, 2))."""
-    out = np.empty(3 * len(faces))
-    for f in range(len(faces)):
-        for k in range(3):
-            a, b = faces[f, k], faces[f, (k + 1) % 3]
-            du, dv = uv[a, 0] - uv[b, 0], uv[a, 1] - uv[b, 1]
-            out[3 * f + k] = np.sqrt(du * du + dv * dv)
-    return out
+    return float(np.median(side_lengths(uv, faces)))
 
 
 @numba.njit(cache=True)

@@ -32,7 +32,8 @@ import scipy.sparse as sp
 
 from ..rotation import kabsch
 from .align import Alignment, align, axes_pose
-from .surface import Surface, face_normals, transform_points
+from .graph import face_normals
+from .surface import Surface, transform_points
 from .topology import DiskMesh, prepare_disk, triangle_areas
 from .warp import arap_warp
 

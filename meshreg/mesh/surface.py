@@ -14,30 +14,12 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .graph import face_normals, side_lengths
 from .topology import boundary_edges
 
 NORMAL_AGREEMENT = np.cos(np.radians(60.0))  # |n1 . n2| below this: a pair of points on different sheets
 RIM_CANDIDATES = 16  # boundary segments (nearest midpoints) tried per point for its exact distance to the rim
 NEAREST_VERTICES = 6  # a point's closest point is sought on the triangles around its nearest vertices
-
-
-def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unnormalized normals (m, 3) of the triangles: twice their area times the unit normal (the cross product of
-    their sides from the first corner, as ``np.cross`` computes it, in one numba pass)."""
-    return _face_normals(np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64))
-
-
-@numba.njit(cache=True)
-def _face_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    out = np.empty((len(faces), 3))
-    for f in range(len(faces)):
-        i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
-        a0, a1, a2 = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
-        b0, b1, b2 = v[k, 0] - v[i, 0], v[k, 1] - v[i, 1], v[k, 2] - v[i, 2]
-        out[f, 0] = a1 * b2 - a2 * b1
-        out[f, 1] = a2 * b0 - a0 * b2
-        out[f, 2] = a0 * b1 - a1 * b0
-    return out
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -51,23 +33,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def median_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Median length of the triangles' edges (their first two sides: an inner edge is seen about once)."""
-    v, f = np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64)
-    return float(np.median(_two_sides(v, f)))
-
-
-@numba.njit(cache=True)
-def _two_sides(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Lengths (2m,) of the sides (0, 1) of every triangle, then of the sides (1, 2)."""
-    m = len(faces)
-    out = np.empty(2 * m)
-    for k in range(2):
-        for f in range(m):
-            a, b = faces[f, k], faces[f, k + 1]
-            dx = vertices[a, 0] - vertices[b, 0]
-            dy = vertices[a, 1] - vertices[b, 1]
-            dz = vertices[a, 2] - vertices[b, 2]
-            out[k * m + f] = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return out
+    return float(np.median(side_lengths(vertices, faces, 2)))
 
 
 @numba.njit(cache=True)
