@@ -111,17 +111,23 @@ def h_at(h: np.ndarray, r: np.ndarray, t: np.ndarray, uv: np.ndarray) -> np.ndar
 
 
 def inverse_uv(h: np.ndarray, r: np.ndarray, t: np.ndarray, uv2: np.ndarray) -> np.ndarray:
-    """For places uv2 (k, 2) of the second surface's square, the place of the first's that h maps onto each
-    (linear between h's node images; nearest node image outside them)."""
-    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+    """For places uv2 (k, 2) of the second surface's square, the place of the first's that h maps onto each: linear
+    in the triangles of h's grid (two per cell, as :func:`meshreg.mesh.export.grid_faces`) carried by h, i.e. the
+    exact inverse of h made linear on them; the nearest node image where no carried triangle holds a place (h folded
+    there); NaN rows stay NaN."""
+    from .mesh.export import grid_faces
 
     nodes = np.stack(np.meshgrid(r, t, indexing="ij"), axis=-1).reshape(-1, 2)
     images = h.reshape(-1, 2)
-    # asked in rows of the square: each point's triangle is sought from the last one's (8x faster than at random)
-    order = np.lexsort((uv2[:, 0], np.floor(uv2[:, 1] * np.sqrt(len(uv2)))))
-    inverse = np.empty_like(uv2, dtype=float)
-    inverse[order] = LinearNDInterpolator(images, nodes)(uv2[order])
-    outside = np.isnan(inverse[:, 0]) & np.all(np.isfinite(uv2), axis=1)
-    if outside.any():
-        inverse[outside] = NearestNDInterpolator(images, nodes)(uv2[outside])
+    faces = grid_faces(len(r), len(t))
+    inverse = np.full(uv2.shape, np.nan)
+    finite = np.flatnonzero(np.all(np.isfinite(uv2), axis=1))
+    face, bary = locate(images, faces, uv2[finite])
+    found = face >= 0
+    inverse[finite[found]] = np.einsum("kc,kcx->kx", bary[found], nodes[faces[face[found]]])
+    if not found.all():
+        from scipy.spatial import cKDTree
+
+        lost = finite[~found]
+        inverse[lost] = nodes[cKDTree(images).query(uv2[lost])[1]]
     return np.clip(inverse, 0, 1)

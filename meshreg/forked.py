@@ -29,18 +29,41 @@ def may_fork() -> bool:
     )
 
 
+# this process's own helper processes (multiprocessing.Process: the figure worker of :mod:`meshreg.painter`) that
+# pause (SIGSTOP) while a :class:`Forked` child runs and go on (SIGCONT) when it is done: :func:`idle_core` does not
+# count them as busy, since they give their core to the child
+pausable: set = set()
+
+
+def _running(process) -> bool:
+    """Whether a helper process is alive and runnable now (state R in /proc/<pid>/stat)."""
+    try:
+        with open(f"/proc/{process.pid}/stat") as file:
+            return process.is_alive() and file.read().rsplit(")", 1)[1].split()[0] == "R"
+    except (OSError, IndexError, ValueError):
+        return False
+
+
+def _signal_pausable(signum: int) -> None:
+    """Send ``signum`` to each live :data:`pausable` helper (a child of this process: alive, its pid is its own)."""
+    for process in list(pausable):
+        if process.is_alive():
+            os.kill(process.pid, signum)
+
+
 def idle_core(loadavg: str = "/proc/loadavg") -> bool:
     """Whether a core is idle now: fewer runnable tasks than cores (the fourth field of ``loadavg``, which counts
-    this process too; True where it cannot be read). When every core is busy (other jobs on a shared machine,
-    a pool of workers) a forked child only takes time from its caller, and its copy-on-write page faults cost more
-    CPU than the serial run: on the project's 2-core machine with one other busy process, two 100k-triangle meshes
-    took 1.76 s with the child against 1.62 s without (medians of 4, alternating)."""
+    this process too; True where it cannot be read), not counting this process's own helpers that pause for a child
+    (:data:`pausable`). When every core is busy (other jobs on a shared machine, a pool of workers) a forked child
+    only takes time from its caller, and its copy-on-write page faults cost more CPU than the serial run: on the
+    project's 2-core machine with one other busy process, two 100k-triangle meshes took 1.76 s with the child
+    against 1.62 s without (medians of 4, alternating)."""
     try:
         with open(loadavg) as file:
             running = int(file.read().split()[3].split("/")[0])
     except (OSError, ValueError, IndexError):
         return True
-    return running < (os.cpu_count() or 1)
+    return running - sum(map(_running, pausable)) < (os.cpu_count() or 1)
 
 
 def can_fork() -> bool:
@@ -71,6 +94,7 @@ class Forked:
     :func:`can_fork` (safe, and a core is idle), else (or when the child gives no answer) in the
     caller by :meth:`result`.
 
+    While the child runs, this process's :data:`pausable` helpers are paused (they would take the child's core).
     Use as a context manager: leaving it stops a child whose answer was not asked for (work that turned out not to
     be needed costs the other core only)."""
 
@@ -84,6 +108,7 @@ class Forked:
             self._child.start()
             theirs.close()
             self._conn = ours
+            _signal_pausable(signal.SIGSTOP)
 
     @property
     def forked(self) -> bool:
@@ -102,8 +127,9 @@ class Forked:
         return self._function(*self._args)
 
     def close(self) -> None:
-        """Stop the child (if it still runs) and release the pipe."""
+        """Stop the child (if it still runs), release the pipe and let the :data:`pausable` helpers go on."""
         if self._child is not None:
+            _signal_pausable(signal.SIGCONT)
             if self._child.is_alive():
                 self._child.terminate()
             self._child.join()

@@ -125,7 +125,7 @@ def write_grid_registration(
     from .pipeline import register_with
 
     _set_up_numba()
-    with Painter(1) as painter, threadpool_limits(BLAS_THREADS):
+    with Painter() as painter, threadpool_limits(BLAS_THREADS):
         result = register_with(first, second, options, callback)
         reverse = register_with(second, first, options) if symmetric else None
         names = [RESULT_FILE, FIGURE_FILE] + ([REVERSE_FILE] if symmetric else [])
@@ -151,7 +151,7 @@ def write_mesh_registration(
     from .mesh.export import colored_outputs, write_ply
 
     _set_up_numba()
-    with Painter(1) as painter, threadpool_limits(BLAS_THREADS):
+    with Painter() as painter, threadpool_limits(BLAS_THREADS):
         mr = register_meshes(first, second, options, callback)
         result = mr.result
         title = f"E = {result.energy:.3g}"

@@ -299,12 +299,12 @@ def test_every_key_of_a_mesh_result_is_documented(mesh_files, tmp_path):
     assert keys | files <= documented, sorted((keys | files) - documented)
 
 
-@pytest.mark.parametrize("workers", [0, 1])
-def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_there(tmp_path, workers):
+@pytest.mark.parametrize("fork", [False, True])
+def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_there(tmp_path, fork):
     from meshreg.painter import Painter
 
     points = np.random.default_rng(0).random((5, 6, 3))
-    with Painter(workers) as painter:
+    with Painter(fork) as painter:
         painter.draw("plot_registration", points, points, [1.0, 0.5], tmp_path / "r.png", title="same")
         painter.finish()
         assert (tmp_path / "r.png").stat().st_size > 1000
@@ -319,12 +319,12 @@ def test_a_painter_left_by_an_error_stops_its_worker_at_once():
     from meshreg.painter import Painter
 
     tic = time.perf_counter()
-    with pytest.raises(RuntimeError), Painter(1) as painter:
-        workers = list(painter._workers)
+    with pytest.raises(RuntimeError), Painter() as painter:
+        worker = painter._worker
         raise RuntimeError("bad input found after the fork")
-    for worker in workers:  # stopped in its start-up (matplotlib's import, the warm-up figure), not left to end it
-        worker.join(timeout=10)
-        assert not worker.is_alive()
+    # stopped in its start-up (matplotlib's import, the warm-up figure), not left to end it
+    worker.join(timeout=10)
+    assert not worker.is_alive()
     assert time.perf_counter() - tic < 10
 
 
@@ -340,10 +340,10 @@ def test_the_painter_does_not_fork_while_another_thread_runs():
     from meshreg.painter import Painter
 
     made = []
-    thread = threading.Thread(target=lambda: made.append(Painter(1)))
+    thread = threading.Thread(target=lambda: made.append(Painter()))
     thread.start()
     thread.join()
-    assert made[0]._pool is None
+    assert not made[0].forked
 
 
 def test_the_first_run_check_looks_at_kernels_that_exist():

@@ -55,6 +55,50 @@ def test_idle_core_reads_the_running_tasks(monkeypatch, tmp_path):
     assert idle_core(str(tmp_path / "missing"))
 
 
+def _state(pid: int, wait_for: str = "", seconds: float = 2.0) -> str:
+    """The process's state letter (R, S, T...), read again for up to ``seconds`` until it is ``wait_for``."""
+    import time
+
+    end = time.perf_counter() + seconds
+    while True:
+        with open(f"/proc/{pid}/stat") as file:
+            state = file.read().rsplit(")", 1)[1].split()[0]
+        if state == wait_for or not wait_for or time.perf_counter() > end:
+            return state
+        time.sleep(0.01)
+
+
+def _sleep_then_pid(seconds):
+    import time
+
+    time.sleep(seconds)
+    return os.getpid()
+
+
+@pytest.mark.skipif(not may_fork(), reason="forks only on Linux with more than one core")
+def test_the_figure_worker_pauses_while_a_child_runs_and_is_not_counted_as_busy(monkeypatch, tmp_path):
+    from meshreg.painter import Painter
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    loadavg = tmp_path / "loadavg"
+    with Painter() as painter:
+        worker = painter._worker
+        monkeypatch.setattr(meshreg.forked, "_running", lambda process: process is worker)
+        loadavg.write_text("0.5 0.4 0.3 2/90 123\n")  # this process and the worker
+        assert idle_core(str(loadavg))
+        monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)
+        with Forked(_sleep_then_pid, 1.0) as job:
+            assert job.forked
+            assert _state(worker.pid, "T") == "T"  # stopped: the child has its core
+            assert job.result() != os.getpid()
+        assert _state(worker.pid, "S") != "T"
+        points = np.random.default_rng(0).random((5, 6, 3))
+        painter.draw("plot_registration", points, points, [1.0, 0.5], tmp_path / "r.png")
+        painter.finish()
+    assert (tmp_path / "r.png").stat().st_size > 1000
+    assert not worker.is_alive()
+
+
 def test_processes_is_checked():
     with pytest.raises(InputError, match="processes"):
         Advanced(processes=3)

@@ -384,3 +384,17 @@ def test_mesh_figure_puts_each_panel_in_its_place(tmp_path):
     assert bluish[:, one:two].sum() > 10000 and not reddish[:, one:two].any()
     dark_purple = (b > r) & (r > g + 30) & (b < 100)  # viridis(0) = (68, 1, 84), lit by 0.45-1
     assert dark_purple[:, two:].sum() > 10000
+
+
+def test_inverse_of_a_warp_of_the_square_carries_its_images_back():
+    from meshreg.correspondence import h_at, inverse_uv
+
+    r, t = np.linspace(0, 1, 41), np.linspace(0, 1, 31)
+    u, v = np.meshgrid(r, t, indexing="ij")
+    h = np.stack([u + 0.08 * np.sin(np.pi * u) * np.sin(2 * np.pi * v), v + 0.05 * np.sin(np.pi * v) * u], -1)
+    places = np.random.default_rng(1).random((2000, 2))
+    images = h_at(h, r, t, places)
+    back = inverse_uv(h, r, t, np.vstack([images, [[np.nan, np.nan]], [[0.0, 1.0]]]))
+    assert np.abs(back[:-2] - places).max() < 2e-3  # linear between nodes 1/40 apart: second order in the spacing
+    assert np.isnan(back[-2]).all()
+    assert np.allclose(back[-1], [0.0, 1.0])
