@@ -25,6 +25,7 @@ WRAPPED = {
     "meshreg.result": [("Registration.save", False)],
     "meshreg.painter": [("Painter.__init__", False), ("Painter.finish", False), ("_draw", True)],
     "meshreg.viz": [("warm_up", False)],
+    "meshreg.forked": [("Forked.__init__", False), ("Forked.result", False)],
     "meshreg.outputs": [("write_mesh_registration", False), ("write_grid_registration", False)],
 }
 

@@ -125,13 +125,15 @@ class Start:
     """A ranked starting point: symmetry index, rotation and the coarse DP energy.
 
     ``mirrored``: the DP's aligned first surface is closer to the point reflection of the second than to it
-    (:class:`meshreg.residual.Residual`); such a start is never registered.
+    (:class:`meshreg.residual.Residual`); such a start is never registered. ``residual``: the coordinate residual
+    of the coarse DP match (:attr:`meshreg.residual.Residual.plus`; NaN where not measured).
     """
 
     symmetry: int
     rotation: np.ndarray
     energy: float
     mirrored: bool = False
+    residual: float = float("nan")
 
 
 def best_start(
@@ -182,10 +184,11 @@ def best_start(
         for result in sorted(results, key=lambda x: x.energy):
             h = ob.identity.copy()
             h[..., 0] = result.gamma[:, None]
-            mirrored = ob.residual(result.rotation, h).mirrored
+            residual = ob.residual(result.rotation, h)
+            mirrored = residual.mirrored
             if mirrored and any(s.symmetry == k for s in starts):
                 continue  # one mirrored record per symmetry: its best
-            starts.append(Start(k, result.rotation, result.energy, mirrored))
+            starts.append(Start(k, result.rotation, result.energy, mirrored, residual.plus))
             if not mirrored:
                 break
     return sorted(starts, key=lambda s: s.energy)

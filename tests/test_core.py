@@ -190,3 +190,41 @@ def test_node_system_solves_the_selected_bordered_normal_equations():
     free_shift = np.r_[shift[:-3][selection], shift[-3:]]
     expected = np.linalg.solve(jac.T @ jac + np.diag(free_shift), -jac.T @ res)
     assert np.allclose(system.solve(shift, 1000), expected, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize(("m", "n"), [(2, 3), (3, 4), (4, 5), (7, 2), (41, 101)])
+def test_interpolating_spline_has_fitpacks_knots_and_coefficients(m, n):
+    from scipy.interpolate import RectBivariateSpline
+
+    from meshreg.bspline import interpolating_coefficients
+
+    rng = np.random.default_rng(m * n)
+    r = np.sort(np.r_[0.0, 1.0, rng.random(m - 2)])  # uneven nodes
+    t = np.linspace(0.0, 1.0, n)
+    values = rng.standard_normal((m, n, 2))
+    kx, ky = min(3, m - 1), min(3, n - 1)
+    tx, ty, coef = interpolating_coefficients(values, r, t, kx, ky)
+    for c in range(2):
+        fitpack = RectBivariateSpline(r, t, values[..., c], kx=kx, ky=ky, s=0)
+        assert all(np.array_equal(a, b) for a, b in zip(fitpack.get_knots(), (tx, ty), strict=True))
+        expected = fitpack.get_coeffs().reshape(coef.shape[:2])
+        assert np.allclose(coef[..., c], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    nodes = np.meshgrid(r, t, indexing="ij")
+    through = GridInterpolator(values, r, t).values(nodes[0].ravel(), nodes[1].ravel()).reshape(values.shape)
+    assert np.allclose(through, values, atol=1e-12)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_bspline_basis_and_derivatives_equal_scipys(k):
+    from scipy.interpolate import BSpline
+
+    from meshreg.bspline import basis_matrix
+
+    rng = np.random.default_rng(k)
+    knots = np.r_[[0.0] * (k + 1), np.sort(rng.random(6)), [1.0] * (k + 1)]
+    ncoef = len(knots) - k - 1
+    x = np.r_[knots, rng.random(40)]
+    spline = BSpline(knots, np.eye(ncoef), k)
+    for d in range(k + 1):
+        expected = (spline.derivative(d) if d else spline)(x)
+        assert np.allclose(basis_matrix(knots, k, x, d), expected, rtol=0, atol=1e-12 * max(1, np.abs(expected).max()))

@@ -77,8 +77,11 @@ def _sleep_then_pid(seconds):
 
 @pytest.mark.skipif(not may_fork(), reason="forks only on Linux with more than one core")
 def test_the_figure_worker_pauses_while_a_child_runs_and_is_not_counted_as_busy(monkeypatch, tmp_path):
+    import meshreg.painter
     from meshreg.painter import Painter
 
+    monkeypatch.setattr(meshreg.painter, "may_fork", lambda: True)  # even if an earlier test left a thread running
+    monkeypatch.setattr(meshreg.forked, "may_fork", lambda: True)
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
     loadavg = tmp_path / "loadavg"
     with Painter() as painter:

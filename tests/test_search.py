@@ -76,3 +76,20 @@ def test_later_dp_passes_in_a_band_find_the_whole_table_paths():
     assert banded.params["dp_radius"] == 20 and whole.params["dp_radius"] == 0
     assert banded.energy_dp == pytest.approx(whole.energy_dp, rel=1e-9)
     assert banded.energy == pytest.approx(whole.energy, rel=1e-9)
+
+
+def test_of_twin_starts_the_one_with_the_clearly_lower_coarse_residual_is_registered():
+    from meshreg.choice import close_starts
+    from meshreg.search import Start
+
+    best, twin_right, twin_worse, far = (
+        Start(3, None, 0.50, residual=0.40),
+        Start(5, None, 0.87 * (1 + 1e-15), residual=0.34),
+        Start(4, None, 0.87, residual=1.06),
+        Start(1, None, 5.0, residual=0.1),
+    )
+    for order in ([best, twin_worse, twin_right, far], [best, twin_right, twin_worse, far]):
+        chosen = close_starts(order, max_starts=3, margin=1.0)
+        assert [s.symmetry for s in chosen] == [3, 5]  # whichever twin rounding put first; the far start left out
+    even = [best, Start(4, None, 0.87, residual=0.34), Start(5, None, 0.87, residual=0.33)]
+    assert [s.symmetry for s in close_starts(even, 3, 1.0)] == [3, 4]  # equally good twins: the first
