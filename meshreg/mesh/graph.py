@@ -27,11 +27,11 @@ def _edge_table(faces: np.ndarray, n: int):
         start[min(a, b) + 1] += 1
     for a in range(n):
         start[a + 1] += start[a]
-    order = np.empty(size, np.int64)
+    order, upper = np.empty(size, np.int64), np.empty(size, np.int64)  # each bucket's edges and their upper vertex
     fill = start[:-1].copy()
     for k in range(size):
         lo = min(directed[k, 0], directed[k, 1])
-        order[fill[lo]] = k
+        order[fill[lo]], upper[fill[lo]] = k, max(directed[k, 0], directed[k, 1])
         fill[lo] += 1
     mark = np.full(n, -1, np.int64)
     inverse = np.empty(size, np.int64)
@@ -40,8 +40,7 @@ def _edge_table(faces: np.ndarray, n: int):
     edges = 0
     for a in range(n):
         for p in range(start[a], start[a + 1]):
-            k = order[p]
-            hi = max(directed[k, 0], directed[k, 1])
+            k, hi = order[p], upper[p]
             if mark[hi] < 0:
                 mark[hi] = edges
                 first[edges] = k
@@ -49,8 +48,7 @@ def _edge_table(faces: np.ndarray, n: int):
             inverse[k] = mark[hi]
             counts[mark[hi]] += 1
         for p in range(start[a], start[a + 1]):
-            k = order[p]
-            mark[max(directed[k, 0], directed[k, 1])] = -1
+            mark[upper[p]] = -1
     return directed, inverse, first[:edges], counts[:edges]
 
 

@@ -149,18 +149,19 @@ def _weight_triplets(v: np.ndarray, f: np.ndarray, cotangent: bool):
 def _assemble(rows, cols, vals, place, ni):
     """CSR arrays (indptr, indices, data) of the interior block and of the coupling to the loop of the Laplacian
     diag(W 1) - W, from W's triplets (duplicates add up) and each vertex's ``place``: its row and column among the
-    ``ni`` interior vertices, or ni + its loop position. O(n + nnz): triplets bucketed by row, merged by a marker."""
+    ``ni`` interior vertices, or ni + its loop position. O(n + nnz): each triplet's column and value are copied once
+    into its row's bucket (in triplet order), then each bucket is read in sequence and merged by a marker."""
     start = np.zeros(ni + 1, np.int64)
     for k in range(len(rows)):
         if place[rows[k]] < ni:
             start[place[rows[k]] + 1] += 1
     for r in range(ni):
         start[r + 1] += start[r]
-    order, fill = np.empty(start[ni], np.int64), start[:-1].copy()
+    bucket_col, bucket_val, fill = np.empty(start[ni], np.int64), np.empty(start[ni]), start[:-1].copy()
     for k in range(len(rows)):
         r = place[rows[k]]
         if r < ni:
-            order[fill[r]] = k
+            bucket_col[fill[r]], bucket_val[fill[r]] = place[cols[k]], vals[k]
             fill[r] += 1
     mark = np.full(len(place), -1, np.int64)
     ptr = (np.zeros(ni + 1, np.int64), np.zeros(ni + 1, np.int64))
@@ -171,7 +172,7 @@ def _assemble(rows, cols, vals, place, ni):
         ind[0][size[0] - 1], val[0][size[0] - 1], mark[r] = r, 0.0, size[0] - 1  # the diagonal first
         total = 0.0
         for p in range(start[r], start[r + 1]):
-            c, w = place[cols[order[p]]], vals[order[p]]
+            c, w = bucket_col[p], bucket_val[p]
             total += w
             side = 0 if c < ni else 1
             if mark[c] < 0:
@@ -183,7 +184,7 @@ def _assemble(rows, cols, vals, place, ni):
         ptr[0][r + 1], ptr[1][r + 1] = size
         mark[r] = -1
         for p in range(start[r], start[r + 1]):
-            mark[place[cols[order[p]]]] = -1
+            mark[bucket_col[p]] = -1
     return ptr[0], ind[0][: ptr[0][ni]], val[0][: ptr[0][ni]], ptr[1], ind[1][: ptr[1][ni]], val[1][: ptr[1][ni]]
 
 
