@@ -23,7 +23,12 @@ WRAPPED = {
     "meshreg.mesh.correspond": [("register_meshes", False)],
     "meshreg.mesh.export": [("write_ply", True), ("colored_outputs", False)],
     "meshreg.result": [("Registration.save", False)],
-    "meshreg.painter": [("Painter.__init__", False), ("Painter.finish", False), ("_draw", True)],
+    "meshreg.painter": [
+        ("Painter.__init__", False),
+        ("Painter.draw", False),
+        ("Painter.finish", False),
+        ("_draw", True),
+    ],
     "meshreg.viz": [("warm_up", False)],
     "meshreg.forked": [("Forked.__init__", False), ("Forked.result", False)],
     "meshreg.outputs": [("write_mesh_registration", False), ("write_grid_registration", False)],

@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -35,13 +36,18 @@ def may_fork() -> bool:
 pausable: set = set()
 
 
-def _running(process) -> bool:
-    """Whether a helper process is alive and runnable now (state R in /proc/<pid>/stat)."""
+def _running_threads(process) -> int:
+    """How many threads of a live helper process are runnable now (state R in /proc/<pid>/task/*/stat)."""
+    count = 0
     try:
-        with open(f"/proc/{process.pid}/stat") as file:
-            return process.is_alive() and file.read().rsplit(")", 1)[1].split()[0] == "R"
+        if not process.is_alive():
+            return 0
+        for task in os.listdir(f"/proc/{process.pid}/task"):
+            with open(f"/proc/{process.pid}/task/{task}/stat") as file:
+                count += file.read().rsplit(")", 1)[1].split()[0] == "R"
     except (OSError, IndexError, ValueError):
-        return False
+        pass
+    return count
 
 
 def _signal_pausable(signum: int) -> None:
@@ -51,19 +57,39 @@ def _signal_pausable(signum: int) -> None:
             os.kill(process.pid, signum)
 
 
+# idle_core reads the runnable tasks this many times, this many seconds apart, and takes the fewest: a task that is
+# runnable for an instant (a kernel worker, a thread handing over the GIL) is not a busy core; one read decided
+# wrongly in about a third of the commands on an idle 2-core machine
+LOAD_READS = 3
+LOAD_GAP = 0.002
+
+
+def _busy_tasks(loadavg: str) -> int:
+    """Runnable tasks now (the fourth field of ``loadavg``), less the runnable threads of :data:`pausable` helpers."""
+    with open(loadavg) as file:
+        running = int(file.read().split()[3].split("/")[0])
+    return running - sum(map(_running_threads, pausable))
+
+
 def idle_core(loadavg: str = "/proc/loadavg") -> bool:
     """Whether a core is idle now: fewer runnable tasks than cores (the fourth field of ``loadavg``, which counts
-    this process too; True where it cannot be read), not counting this process's own helpers that pause for a child
-    (:data:`pausable`). When every core is busy (other jobs on a shared machine, a pool of workers) a forked child
-    only takes time from its caller, and its copy-on-write page faults cost more CPU than the serial run: on the
-    project's 2-core machine with one other busy process, two 100k-triangle meshes took 1.76 s with the child
-    against 1.62 s without (medians of 4, alternating)."""
+    this process too; the fewest of LOAD_READS reads; True where it cannot be read), not counting this process's own
+    helpers that pause for a child (:data:`pausable`). When every core is busy (other jobs on a shared machine,
+    a pool of workers) a forked child only takes time from its caller, and its copy-on-write page faults cost more
+    CPU than the serial run: on the project's 2-core machine with one other busy process, two 100k-triangle meshes
+    took 1.76 s with the child against 1.62 s without (medians of 4, alternating)."""
+    fewest = None
     try:
-        with open(loadavg) as file:
-            running = int(file.read().split()[3].split("/")[0])
+        for read in range(LOAD_READS):
+            if read:
+                time.sleep(LOAD_GAP)
+            busy = _busy_tasks(loadavg)
+            fewest = busy if fewest is None else min(fewest, busy)
+            if fewest < (os.cpu_count() or 1):
+                return True
     except (OSError, ValueError, IndexError):
         return True
-    return running - sum(map(_running, pausable)) < (os.cpu_count() or 1)
+    return False
 
 
 def can_fork() -> bool:
@@ -90,18 +116,18 @@ def _serve(conn, function: Callable, args: tuple) -> None:
 
 
 class Forked:
-    """``function(*args)``, computed in a forked child from the moment this is made when ``fork`` is true and
-    :func:`can_fork` (safe, and a core is idle), else (or when the child gives no answer) in the
-    caller by :meth:`result`.
+    """``function(*args)``, computed in a forked child from the moment this is made, else (or when the child gives
+    no answer) in the caller by :meth:`result`. ``fork``: None to fork when :func:`can_fork` (safe, and a core is
+    idle), True when the caller has found a core idle itself (still only where :func:`may_fork`), False never.
 
     While the child runs, this process's :data:`pausable` helpers are paused (they would take the child's core).
     Use as a context manager: leaving it stops a child whose answer was not asked for (work that turned out not to
     be needed costs the other core only)."""
 
-    def __init__(self, function: Callable, *args, fork: bool = True):
+    def __init__(self, function: Callable, *args, fork: bool | None = None):
         self._function, self._args = function, args
         self._child = self._conn = None
-        if fork and can_fork():
+        if can_fork() if fork is None else fork and may_fork():
             context = multiprocessing.get_context("fork")
             ours, theirs = context.Pipe(duplex=False)
             self._child = context.Process(target=_serve, args=(theirs, function, args), daemon=True)

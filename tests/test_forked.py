@@ -53,6 +53,10 @@ def test_idle_core_reads_the_running_tasks(monkeypatch, tmp_path):
         path.write_text(f"0.5 0.4 0.3 {running}/90 123\n")
         assert idle_core(str(path)) == idle
     assert idle_core(str(tmp_path / "missing"))
+    for reads, idle in (([2, 1, 2], True), ([2, 2, 2], False), ([3, 3, 1], True)):  # a task runnable for an instant
+        counts = iter(reads)
+        monkeypatch.setattr(meshreg.forked, "_busy_tasks", lambda loadavg, counts=counts: next(counts))
+        assert idle_core() == idle
 
 
 def _state(pid: int, wait_for: str = "", seconds: float = 2.0) -> str:
@@ -86,7 +90,7 @@ def test_the_figure_worker_pauses_while_a_child_runs_and_is_not_counted_as_busy(
     loadavg = tmp_path / "loadavg"
     with Painter() as painter:
         worker = painter._worker
-        monkeypatch.setattr(meshreg.forked, "_running", lambda process: process is worker)
+        monkeypatch.setattr(meshreg.forked, "_running_threads", lambda process: int(process is worker))
         loadavg.write_text("0.5 0.4 0.3 2/90 123\n")  # this process and the worker
         assert idle_core(str(loadavg))
         monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)
