@@ -24,8 +24,7 @@ from functools import wraps
 import numba
 import numpy as np
 import scipy.sparse as sp
-
-from .bspline import basis_matrix
+from scipy.interpolate import BSpline
 
 BASIS_CACHE = 8  # bases kept per process, by kind, size and grid (every start and level asks for the same few)
 
@@ -260,8 +259,8 @@ def _bsplines(x: np.ndarray, n: int):
     """n clamped uniform cubic B-splines on [0, 1] at x, and their derivatives: (len(x), n) each."""
     interior = np.linspace(0.0, 1.0, n - 2)
     knots = np.concatenate([[0.0] * 3, interior, [1.0] * 3])
-    inside = ((x >= 0.0) & (x <= 1.0))[:, None]
-    return basis_matrix(knots, 3, x) * inside, basis_matrix(knots, 3, x, 1) * inside
+    spline = BSpline(knots, np.eye(n), 3, extrapolate=False)
+    return np.nan_to_num(spline(x)), np.nan_to_num(spline.derivative()(x))
 
 
 @_kept
