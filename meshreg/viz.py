@@ -21,6 +21,8 @@ from matplotlib.gridspec import GridSpec
 from matplotlib.transforms import offset_copy
 from PIL import Image
 
+from .mesh.graph import face_normals
+
 # mesh panels are rendered to images with a depth buffer (:func:`render_mesh`; matplotlib's 3D axes drew one path
 # per triangle: two 100k-triangle meshes took 4 s, 1.2-2 s from copies simplified to 20000 triangles), the mesh
 # filling all but this fraction of the panel on each side
@@ -122,7 +124,7 @@ def warm_up() -> None:
     ax.set_title("warm", fontsize=10)
     image = fig.add_subplot(1, 2, 2).imshow(np.eye(2), origin="lower", extent=(0, 1, 0, 1), cmap="magma")
     fig.colorbar(image, ax=image.axes, label="warm")
-    _mesh_image(points, np.array([[0, 1, 2]]), np.full((1, 3), 0.5), 8, 8)
+    _paint(_mesh_picture(points, np.array([[0, 1, 2]]), 8, 8)[0], np.full((1, 3), 0.5))
     fig.colorbar(cm.ScalarMappable(cmap="viridis"), cax=fig.add_axes((0.9, 0.1, 0.05, 0.8))).set_label("warm")
     fig.suptitle("warm")
     fig.text(0.0, 0.0, "warm", fontsize=9)
@@ -192,7 +194,7 @@ def plot_matrix(names, distance: np.ndarray, embedding: np.ndarray, path, title:
 
 def _view_rotation(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     """A rotation (3, 3) taking the mesh's mean (area-weighted) normal to +z: the camera then faces the surface."""
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]).sum(axis=0)
+    n = face_normals(v, f).sum(axis=0)
     z = n / max(np.linalg.norm(n), 1e-300)
     x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
     x /= np.linalg.norm(x)
@@ -236,12 +238,13 @@ def plot_meshes(
     if second_to_first is not None:
         v2 = v2 @ second_to_first[:3, :3].T + second_to_first[:3, 3]
     view = _view_rotation(v1, f1)
-    panels = [(v1, f1, c1[f1].mean(axis=1), f"first mesh ({len(v1)} vertices)")]
+    first, second = ((v - v1.mean(axis=0)) @ view.T for v in (v1, v2))
+    panels = [(first, f1, _face_means(c1, f1), f"first mesh ({len(v1)} vertices)")]
     pose = ", in the first's pose" if second_to_first is not None else ""
-    panels.append((v2, f2, c2[f2].mean(axis=1), f"second mesh ({len(v2)} vertices){pose}"))
+    panels.append((second, f2, _face_means(c2, f2), f"second mesh ({len(v2)} vertices){pose}"))
     if distance is not None:
         norm, colors = _distance_colors(distance, f1)
-        panels.append((v1, f1, colors, "distance to the corresponding point"))
+        panels.append((first, f1, colors, "distance to the corresponding point"))
     count = len(panels)
     fig = Figure(figsize=(5.5 * count, 5.2), dpi=MESH_DPI)
     right = 0.99 - 0.06 * (distance is not None)  # room for the colour bar
@@ -252,9 +255,10 @@ def plot_meshes(
     width, height = int(fig.bbox.width), int(fig.bbox.height)
     above = offset_copy(fig.transFigure, fig=fig, y=6, units="points")  # where matplotlib puts an axes title
     places = []
+    across = int(rights[0] * width) - int(round(lefts[0] * width))  # every panel as wide (one picture serves two)
     for k, (*_, name) in enumerate(panels):
-        x0, x1, y0 = int(round(lefts[k] * width)), int(rights[k] * width), int(round((1 - top) * height))
-        places.append((slice(y0, int((1 - bottom) * height)), slice(x0, x1)))
+        x0, y0 = int(round(lefts[k] * width)), int(round((1 - top) * height))
+        places.append((slice(y0, int((1 - bottom) * height)), slice(x0, x0 + across)))
         fig.text(0.5 * (lefts[k] + rights[k]), top, name, transform=above, ha="center", va="baseline", fontsize=10)
     if distance is not None:
         from matplotlib import cm
@@ -265,13 +269,23 @@ def plot_meshes(
     # the text drawn by matplotlib, the panels' pixels put in place (nothing resampled, no axes to lay out)
     canvas = FigureCanvasAgg(fig)
     canvas.draw()
-    pixels = np.array(canvas.buffer_rgba())
+    pixels = np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3])
+    pictures = {}  # the first mesh's picture (triangle per pixel, shading) serves its two panels
     for (rows, columns), (v, f, c, _) in zip(places, panels, strict=True):
-        image = _mesh_image((v - v1.mean(axis=0)) @ view.T, f, c, columns.stop - columns.start, rows.stop - rows.start)
-        pixels[rows, columns, :3] = np.round(image * 255)
+        size = (columns.stop - columns.start, rows.stop - rows.start)
+        key = (id(v), size)
+        if key not in pictures:
+            pictures[key] = _mesh_picture(v, f, *size)
+        ids, shade = pictures[key]
+        pixels[rows, columns] = _paint(ids, np.clip(c * shade[:, None], 0, 1))
     path = Path(path)
     Image.fromarray(pixels).save(path, format="png", compress_level=PNG_COMPRESSION)
     return path
+
+
+def _face_means(values: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The mean (m, k) of per-vertex values (n, k) over each triangle's corners."""
+    return (values[faces[:, 0]] + values[faces[:, 1]] + values[faces[:, 2]]) / 3
 
 
 def _distance_colors(distance: np.ndarray, faces: np.ndarray):
@@ -290,15 +304,21 @@ def _distance_colors(distance: np.ndarray, faces: np.ndarray):
     return norm, colors
 
 
-def _mesh_image(points: np.ndarray, faces: np.ndarray, face_colors: np.ndarray, width: int, height: int) -> np.ndarray:
-    """An RGB image (height, width, 3) of faces in their colours, lit by LIGHT (Lambert, with an ambient floor), seen
-    by an orthographic camera at ELEVATION and AZIMUTH (:func:`render_mesh`)."""
-    tri = points[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+def _mesh_picture(points: np.ndarray, faces: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The triangle seen at each pixel (height, width; -1 for none) of a mesh seen by an orthographic camera at
+    ELEVATION and AZIMUTH (:func:`render_mesh`), and each triangle's shade (m,) in LIGHT (Lambert, with an ambient
+    floor; both sides lit: the winding of a scan is arbitrary)."""
+    normal = face_normals(points, faces)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    shade = 0.45 + 0.55 * np.abs(normal @ LIGHT)  # both sides lit: the winding of a scan is arbitrary
-    colors = np.clip(face_colors * shade[:, None], 0, 1)
-    return render_mesh(points @ camera(ELEVATION, AZIMUTH).T, faces, colors, width, height)
+    shade = 0.45 + 0.55 * np.abs(normal @ LIGHT)
+    return _face_ids(points @ camera(ELEVATION, AZIMUTH).T, faces, width, height), shade
+
+
+def _paint(ids: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """8-bit RGB pixels (h, w, 3) of a picture of triangle ids (h, w) in the triangles' colours (m, 3) in [0, 1],
+    white where no triangle is seen."""
+    palette = np.round(np.vstack([colors, np.ones((1, 3))]) * 255).astype(np.uint8)
+    return palette[ids]  # id -1 picks the last row, white
 
 
 def camera(elevation: float, azimuth: float) -> np.ndarray:
@@ -315,21 +335,27 @@ def render_mesh(points: np.ndarray, faces: np.ndarray, colors: np.ndarray, width
     the viewer; faces (m, 3); one colour (m, 3) each) drawn orthographically with a depth buffer: each pixel
     whose centre lies in a triangle takes the colour of the nearest such triangle; the rest is white. The mesh is
     scaled to fit with a margin of RENDER_MARGIN, the same scale along x and y."""
+    ids = _face_ids(points, faces, width, height)
+    return np.where(ids[..., None] >= 0, np.asarray(colors, float)[ids], 1.0)
+
+
+def _face_ids(points: np.ndarray, faces: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The nearest triangle (its index) whose face covers each pixel's centre, -1 where none does: (height, width),
+    for points in screen coordinates as :func:`render_mesh` takes them, fitted as it describes."""
     xy = points[:, :2] - 0.5 * (points[:, :2].min(axis=0) + points[:, :2].max(axis=0))
     extent = np.maximum(np.ptp(xy, axis=0), 1e-300)
     scale = (1 - 2 * RENDER_MARGIN) * min(width / extent[0], height / extent[1])
     screen = np.c_[xy[:, 0] * scale + 0.5 * width - 0.5, 0.5 * height - 0.5 - xy[:, 1] * scale, points[:, 2]]
-    image = np.ones((height, width, 3))
-    _rasterize(
-        np.ascontiguousarray(screen), np.ascontiguousarray(faces, dtype=np.int64), np.asarray(colors, float), image
-    )
-    return image
+    ids = np.full((height, width), -1, dtype=np.int64)
+    _rasterize(np.ascontiguousarray(screen), np.ascontiguousarray(faces, dtype=np.int64), ids)
+    return ids
 
 
 @numba.njit(cache=True)
-def _rasterize(screen, faces, colors, image):  # pragma: no cover (numba)
-    """Draw triangles (pixel x, pixel y with row 0 at the top, depth towards the viewer) into ``image`` in place."""
-    height, width = image.shape[0], image.shape[1]
+def _rasterize(screen, faces, ids):  # pragma: no cover (numba)
+    """Write into ``ids`` (height, width) the nearest triangle covering each pixel (pixel x, pixel y with row 0 at
+    the top, depth towards the viewer)."""
+    height, width = ids.shape[0], ids.shape[1]
     depth = np.full((height, width), -np.inf)
     for f in range(faces.shape[0]):
         ax, ay, az = screen[faces[f, 0], 0], screen[faces[f, 0], 1], screen[faces[f, 0], 2]
@@ -350,7 +376,7 @@ def _rasterize(screen, faces, colors, image):  # pragma: no cover (numba)
                 z = wa * az + wb * bz + wc * cz
                 if z > depth[y, x]:
                     depth[y, x] = z
-                    image[y, x, 0], image[y, x, 1], image[y, x, 2] = colors[f, 0], colors[f, 1], colors[f, 2]
+                    ids[y, x] = f
 
 
 def classical_mds(distance: np.ndarray, dims: int = 2) -> np.ndarray:
