@@ -151,7 +151,7 @@ def write_mesh_registration(
     from .mesh.export import colored_outputs, write_ply
 
     _set_up_numba()
-    with Painter() as painter, threadpool_limits(BLAS_THREADS):
+    with Painter(workers=2) as painter, threadpool_limits(BLAS_THREADS):
         mr = register_meshes(first, second, options, callback)
         result = mr.result
         title = f"E = {result.energy:.3g}"

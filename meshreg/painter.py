@@ -1,28 +1,33 @@
-"""Figures drawn beside the computation: on Linux with more than one core, :class:`Painter` forks one worker process
-as soon as it is made; the worker imports matplotlib (about 0.4 s) and draws a tiny figure
-(:func:`meshreg.viz.warm_up`: fonts, the PNG writer, the mesh renderer's numba kernel; about 0.5 s that the first
-real figure would otherwise pay) while the caller registers, then draws the figures it is given while the caller
-writes its other files. ``meshreg register`` makes its painter after its own imports (numpy, numba, scipy) and
-numba's set-up, which the worker inherits instead of doing them again beside the caller (forked at the start of the
-command, the worker made the command 0.4 s slower in 3 of 4 runs on a busy 2-core machine). One worker draws every
-figure of a registration: it then spends the CPU time the caller would have spent, on the other core.
+"""Figures drawn beside the computation: on Linux with more than one core, :class:`Painter` forks a worker process as
+soon as it is made; the worker imports matplotlib (about 0.4 s) and draws a tiny figure (:func:`meshreg.viz.warm_up`:
+fonts, the PNG writer, the mesh renderer's numba kernel; about 0.5 s that the first real figure would otherwise pay)
+while the caller registers, then draws the figures it is given while the caller writes its other files.
+``meshreg register`` makes its painter after its own imports (numpy, numba, scipy) and numba's set-up, which the
+worker inherits instead of doing them again beside the caller (forked at the start of the command, the worker made
+the command 0.4 s slower in 3 of 4 runs on a busy 2-core machine).
 
-The worker is known to :mod:`meshreg.forked` as a helper that pauses for a child (:data:`meshreg.forked.pausable`),
-so that the registration may still fork its own child (the maps to the square of two large meshes,
-:class:`meshreg.forked.Forked`) while the worker warms up: the child takes the worker's core, and the worker goes on
-when the child is done. The caller keeps no thread of its own for the worker (jobs go through a pipe that a
-thread of the worker empties), since a fork from a process with other threads is unsafe.
+With ``workers=2`` (the mesh command's two figures) the warmed worker forks a second one, which inherits matplotlib
+as it is and costs no second import; each figure goes to the worker with fewer figures waiting, so that
+``meshes.png`` need not wait for ``registration.png`` (the second worker is used once it has said it is ready).
+
+The first worker is known to :mod:`meshreg.forked` as a helper that pauses for a child
+(:data:`meshreg.forked.pausable`), so that the registration may still fork its own child (the maps to the square of
+two large meshes, :class:`meshreg.forked.Forked`) while the worker warms up: the child takes the worker's core, and
+the worker goes on when the child is done. The caller keeps no thread of its own for the workers (jobs go through
+pipes that a thread of each worker empties), since a fork from a process with other threads is unsafe.
 
 Elsewhere (or with one core, inside a daemonic pool worker, or while other Python threads run, where a fork is
 unsafe) the figures are drawn in the calling process by :meth:`Painter.finish`. Either way every figure is written
-when :meth:`Painter.finish` returns, and an error drawing one is raised there; a figure the worker could not answer
-for (it died) is drawn in the caller. When the block of a painter ends by an exception its worker is stopped at
-once (SIGTERM), not left to finish its start-up or a figure.
+when :meth:`Painter.finish` returns, and an error drawing one is raised there; a figure a worker could not answer
+for (it died) is drawn in the caller. When the block of a painter ends by an exception the first worker is stopped
+at once (SIGTERM), not left to finish its start-up or a figure; the second (a child of the first, not of the caller)
+ends when its pipe closes, after the figure it may be drawing.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
 import queue
 import threading
 
@@ -46,15 +51,8 @@ def _receive(conn, jobs: queue.SimpleQueue) -> None:
             return
 
 
-def _work(conn) -> None:
-    """The worker: leave Ctrl-C and SIGTERM to the caller (it stops the worker), import the figures and draw a tiny
-    one (:func:`meshreg.viz.warm_up`), then draw each job and answer None or the error."""
-    leave_signals_to_caller()
-    jobs = queue.SimpleQueue()
-    threading.Thread(target=_receive, args=(conn, jobs), daemon=True).start()
-    from . import viz
-
-    viz.warm_up()
+def _serve(conn, jobs: queue.SimpleQueue) -> None:
+    """Draw each job of ``jobs`` until None and answer None or the error on ``conn``."""
     while (job := jobs.get()) is not None:
         try:
             _draw(*job)
@@ -66,36 +64,88 @@ def _work(conn) -> None:
                 conn.send(RuntimeError(f"{job[0]}: {err!r}"))
 
 
+def _listen(conn) -> queue.SimpleQueue:
+    """The jobs arriving on ``conn``, moved to a queue by a thread of this process (:func:`_receive`)."""
+    jobs = queue.SimpleQueue()
+    threading.Thread(target=_receive, args=(conn, jobs), daemon=True).start()
+    return jobs
+
+
+def _fork_second(first, second) -> None:
+    """In the warmed first worker: fork the second worker, which says it is ready and serves ``second`` (and never
+    holds the first's pipe, so that the caller still sees the first die)."""
+    if os.fork() == 0:
+        try:
+            first.close()
+            second.send("ready")
+            _serve(second, _listen(second))
+        finally:
+            os._exit(0)
+    second.close()
+
+
+def _work(conn, second, callers: list) -> None:
+    """The first worker: close the caller's ends of the pipes (``callers``: a worker holding one would never see
+    the caller close it), leave Ctrl-C and SIGTERM to the caller (it stops the worker), import the figures and draw
+    a tiny one (:func:`meshreg.viz.warm_up`), fork the second worker when there is to be one, then draw each job
+    and answer None or the error."""
+    for end in callers:
+        end.close()
+    leave_signals_to_caller()
+    jobs = _listen(conn)
+    from . import viz
+
+    viz.warm_up()
+    if second is not None:
+        _fork_second(conn, second)
+    _serve(conn, jobs)
+
+
 class Painter:
-    """Draws functions of :mod:`meshreg.viz` by name, in a forked worker process when ``fork`` and it is safe (see
-    the module), else in the caller at :meth:`finish`.
+    """Draws functions of :mod:`meshreg.viz` by name, in forked worker processes (``workers``, 1 or 2) when it is
+    safe (see the module), else (``workers`` 0) in the caller at :meth:`finish`.
 
-    Use as a context manager: leaving it stops the worker (a figure still being drawn is abandoned)."""
+    Use as a context manager: leaving it stops the workers (a figure still being drawn is abandoned)."""
 
-    def __init__(self, fork: bool = True):
-        self._sent: list[tuple] = []
+    def __init__(self, workers: int = 1):
         self._queued: list[tuple] = []
-        self._worker = self._conn = None
-        if fork and may_fork():
+        self._worker = None
+        self._conns, self._sent, self._ready = [], [], [True, False]
+        if workers > 0 and may_fork():
             context = multiprocessing.get_context("fork")
-            self._conn, theirs = context.Pipe()
-            self._worker = context.Process(target=_work, args=(theirs,), daemon=True)
+            pipes = [context.Pipe() for _ in range(min(workers, 2))]
+            ends = ([theirs for _, theirs in pipes] + [None])[:2]
+            self._worker = context.Process(target=_work, args=(*ends, [ours for ours, _ in pipes]), daemon=True)
             self._worker.start()
-            theirs.close()
+            for ours, theirs in pipes:
+                theirs.close()
+                self._conns.append(ours)
+                self._sent.append([])
             pausable.add(self._worker)
 
     @property
     def forked(self) -> bool:
-        """Whether the figures are drawn in a worker process."""
+        """Whether the figures are drawn in worker processes."""
         return self._worker is not None
 
+    def _free_worker(self) -> int:
+        """The ready worker with the fewest figures waiting (the first on a tie)."""
+        if not self._ready[1] and len(self._conns) > 1:
+            try:
+                self._ready[1] = self._conns[1].poll(0) and self._conns[1].recv() == "ready"
+            except (EOFError, OSError):  # the first worker died before it forked the second
+                self._ready[1] = False
+        ready = [k for k in range(len(self._conns)) if self._ready[k]]
+        return min(ready, key=lambda k: len(self._sent[k]))
+
     def draw(self, name: str, *args, **kwargs) -> None:
-        """Queue ``meshreg.viz.<name>(*args, **kwargs)`` (for the worker, or for :meth:`finish` without it)."""
+        """Queue ``meshreg.viz.<name>(*args, **kwargs)`` (for a worker, or for :meth:`finish` without one)."""
         job = (name, args, kwargs)
         if self._worker is not None:
+            k = self._free_worker()
             try:
-                self._conn.send(job)
-                self._sent.append(job)
+                self._conns[k].send(job)
+                self._sent[k].append(job)
                 return
             except OSError:  # the worker is gone: the caller draws it
                 pass
@@ -103,31 +153,34 @@ class Painter:
 
     def finish(self) -> None:
         """Draw (or wait for) every queued figure, raising the first error."""
-        sent, queued, self._sent, self._queued = self._sent, self._queued, [], []
-        errors = []
-        for k in range(len(sent)):
-            try:
-                answer = self._conn.recv()
-            except (EOFError, OSError):  # the worker died: the caller draws what it did not answer for
-                queued[:0] = sent[k:]
-                break
-            if answer is not None:
-                errors.append(answer)
+        queued, errors = self._queued, []
+        self._queued = []
+        for conn, sent in zip(self._conns, self._sent, strict=True):
+            for k in range(len(sent)):
+                try:
+                    answer = conn.recv()
+                except (EOFError, OSError):  # the worker died: the caller draws what it did not answer for
+                    queued += sent[k:]
+                    break
+                if answer is not None:
+                    errors.append(answer)
+            sent.clear()
         for job in queued:
             _draw(*job)
         if errors:
             raise errors[0]
 
     def close(self) -> None:
-        """Stop the worker (SIGTERM): after :meth:`finish` it has nothing left to do; before, its figures are
-        abandoned."""
+        """Stop the first worker (SIGTERM) and close the pipes (the second worker then ends): after :meth:`finish`
+        they have nothing left to do; before, their figures are abandoned."""
         if self._worker is None:
             return
         pausable.discard(self._worker)
         self._worker.terminate()
         self._worker.join()
-        self._conn.close()
-        self._worker = self._conn = None
+        for conn in self._conns:
+            conn.close()
+        self._worker, self._conns = None, []
 
     def __enter__(self) -> Painter:
         return self

@@ -299,18 +299,53 @@ def test_every_key_of_a_mesh_result_is_documented(mesh_files, tmp_path):
     assert keys | files <= documented, sorted((keys | files) - documented)
 
 
-@pytest.mark.parametrize("fork", [False, True])
-def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_there(tmp_path, fork):
+@pytest.mark.parametrize("workers", [0, 1, 2])
+def test_the_painter_writes_every_figure_by_finish_and_raises_a_figure_error_there(tmp_path, workers):
     from meshreg.painter import Painter
 
     points = np.random.default_rng(0).random((5, 6, 3))
-    with Painter(fork) as painter:
+    with Painter(workers) as painter:
         painter.draw("plot_registration", points, points, [1.0, 0.5], tmp_path / "r.png", title="same")
         painter.finish()
         assert (tmp_path / "r.png").stat().st_size > 1000
         painter.draw("plot_registration", points, points[:2], [1.0], tmp_path / "bad.png")
         with pytest.raises(ValueError):
             painter.finish()
+
+
+def _slow_pid(path):
+    import os
+    import time
+
+    time.sleep(0.5)
+    with open(path, "w") as file:
+        file.write(str(os.getpid()))
+
+
+def test_two_painter_workers_draw_two_figures_at_once(monkeypatch, tmp_path):
+    """The warmed worker forks the second; once it is ready, a figure queued while the first is busy goes to it."""
+    import os
+    import time
+
+    import meshreg.painter
+    from meshreg import viz
+    from meshreg.painter import Painter
+
+    monkeypatch.setattr(meshreg.painter, "may_fork", lambda: True)  # even if an earlier test left a thread running
+    monkeypatch.setattr(viz, "slow_pid", _slow_pid, raising=False)  # the workers fork with it
+    with Painter(workers=2) as painter:
+        end = time.perf_counter() + 30
+        while painter._free_worker() == 0 and not painter._ready[1] and time.perf_counter() < end:
+            time.sleep(0.05)
+        assert painter._ready[1], "the second worker never said it was ready"
+        tic = time.perf_counter()
+        painter.draw("slow_pid", tmp_path / "a")
+        painter.draw("slow_pid", tmp_path / "b")
+        painter.finish()
+        took = time.perf_counter() - tic
+    pids = {(tmp_path / name).read_text() for name in "ab"}
+    assert len(pids) == 2 and str(os.getpid()) not in pids
+    assert took < 0.95  # side by side, not one after the other
 
 
 def test_a_painter_left_by_an_error_stops_its_worker_at_once(monkeypatch):
