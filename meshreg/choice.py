@@ -19,8 +19,9 @@ SYMMETRY_MARGIN = 0.05
 # below this fraction of the chosen start's
 MIRROR_MARGIN = 0.5
 # two starts whose coarse energies agree to this relative tolerance are twins: a symmetry of the surfaces maps one
-# problem onto the other (measured: the twins of the paper's pairs agree to 1e-15), so only the first is registered;
-# the other stays a spare, and the chosen answer's symmetric twins are listed by meshreg.alternatives
+# problem onto the other (measured: the twins of the paper's pairs agree to 1e-15), so only one is registered (see
+# TWIN_RESIDUAL_MARGIN); the other stays a spare, and the chosen answer's symmetric twins are listed by
+# meshreg.alternatives
 TWIN_TOL = 1e-9
 # of twins, the one whose coarse match has the clearly lower coordinate residual (by this fraction) is registered:
 # E cannot tell a surface from its point reflection, so twins can be unequally right (collection pairs 0-5 and
@@ -114,8 +115,9 @@ def choose(candidates: list[Candidate], options: Options) -> int:
 def close_starts(starts: list[Start], max_starts: int, margin: float) -> list[Start]:
     """The ranked starts worth a full registration: the best, then those whose coarse energy is within
     ``margin`` of it (at most ``max_starts``), twins left out (a start whose coarse energy equals, within TWIN_TOL,
-    that of one kept already: the same problem under a symmetry of the surfaces; of twins, the one whose coarse
-    match has the clearly lower coordinate residual, TWIN_RESIDUAL_MARGIN). The identity symmetry goes first
+    that of one kept already: the same problem under a symmetry of the surfaces, or under the point reflection that
+    E cannot see; of twins, the first unless another's coarse match has a clearly lower coordinate residual,
+    TWIN_RESIDUAL_MARGIN, which then replaces it, even the identity put first below). The identity symmetry goes first
     when it is within SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given
     parametrization)."""
     best = starts[0]

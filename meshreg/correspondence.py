@@ -113,8 +113,10 @@ def h_at(h: np.ndarray, r: np.ndarray, t: np.ndarray, uv: np.ndarray) -> np.ndar
 def inverse_uv(h: np.ndarray, r: np.ndarray, t: np.ndarray, uv2: np.ndarray) -> np.ndarray:
     """For places uv2 (k, 2) of the second surface's square, the place of the first's that h maps onto each: linear
     in the triangles of h's grid (two per cell, as :func:`meshreg.mesh.export.grid_faces`) carried by h, i.e. the
-    exact inverse of h made linear on them; the nearest node image where no carried triangle holds a place (h folded
-    there); NaN rows stay NaN."""
+    exact inverse of h made linear on them; the nearest node's image where no carried triangle holds a place (where
+    h's boundary falls short of the square's sides, or by rounding beyond 1e-6); NaN rows stay NaN. Point location
+    costs more where the carried triangles are large or overlap: 100k places on a 101 x 101 h took 0.04 s for a
+    smooth h, 1.0 s with its nodes jittered by 0.2 and 2.7 s with random node images."""
     from .mesh.export import grid_faces
 
     nodes = np.stack(np.meshgrid(r, t, indexing="ij"), axis=-1).reshape(-1, 2)

@@ -8,6 +8,8 @@ answer could not be pickled): the answer, and any error, are then exactly those 
 
 from __future__ import annotations
 
+import atexit
+import ctypes
 import multiprocessing
 import os
 import signal
@@ -30,10 +32,77 @@ def may_fork() -> bool:
     )
 
 
-# this process's own helper processes (multiprocessing.Process: the figure worker of :mod:`meshreg.painter`) that
-# pause (SIGSTOP) while a :class:`Forked` child runs and go on (SIGCONT) when it is done: :func:`idle_core` does not
-# count them as busy, since they give their core to the child
-pausable: set = set()
+# this process's own helper processes (multiprocessing.Process: the figure worker of :mod:`meshreg.painter`), each
+# with a pidfd to signal it by (None where the system has none): they pause (SIGSTOP) while a :class:`Forked` child
+# runs and go on (SIGCONT) when it is done, and :func:`idle_core` does not count them as busy, since they give their
+# core to the child. A forked child starts with none (os.register_at_fork below).
+_pausable: dict = {}
+PR_SET_PDEATHSIG = 1  # prctl option: the signal a process gets when its parent dies (linux/prctl.h)
+_paused = 0  # Forked children running now: the helpers are paused while there is at least one
+_continued_at_exit = False  # whether the exit hook that continues the helpers is registered
+
+
+def _forget_pausable() -> None:
+    """Drop every pausable helper (in a forked child: they are not its children)."""
+    for fd in _pausable.values():
+        if fd is not None:
+            os.close(fd)
+    _pausable.clear()
+
+
+def add_pausable(process) -> None:
+    """Pause ``process`` (a started child of this process) while a :class:`Forked` child runs; it is continued when
+    this process exits, so that no stopped helper is left behind (a stopped process cannot die of SIGTERM)."""
+    try:
+        fd = os.pidfd_open(process.pid)
+    except (AttributeError, OSError):
+        fd = None
+    global _continued_at_exit
+    if not _continued_at_exit:  # registered after multiprocessing's exit hook (a process was started): runs first
+        atexit.register(_signal_pausable, signal.SIGCONT)
+        _continued_at_exit = True
+    _pausable[process] = fd
+    if _paused:
+        _signal_pausable(signal.SIGSTOP)
+
+
+def discard_pausable(process) -> None:
+    """Stop treating ``process`` as pausable, continuing it first if it is paused."""
+    fd = _pausable.pop(process, "missing")
+    if fd == "missing":
+        return
+    _send(process, fd, signal.SIGCONT)
+    if fd is not None:
+        os.close(fd)
+
+
+def _send(process, fd, signum: int) -> None:
+    """``signum`` to a helper: through its pidfd (exact even after it died), else by pid while it is alive."""
+    try:
+        if fd is not None:
+            signal.pidfd_send_signal(fd, signum)
+        elif process.is_alive():
+            os.kill(process.pid, signum)
+    except (OSError, ValueError, AssertionError):  # gone, closed, or not ours
+        pass
+
+
+def _signal_pausable(signum: int) -> None:
+    """Send ``signum`` to every pausable helper."""
+    for process, fd in list(_pausable.items()):
+        _send(process, fd, signum)
+
+
+def _pause(step: int) -> None:
+    """One more (step 1) or one fewer (-1) Forked child running: pause the helpers at the first, continue them
+    after the last."""
+    global _paused
+    _paused = max(_paused + step, 0)
+    if _paused == (1 if step > 0 else 0):
+        _signal_pausable(signal.SIGSTOP if step > 0 else signal.SIGCONT)
+
+
+os.register_at_fork(after_in_child=_forget_pausable)
 
 
 def _running_threads(process) -> int:
@@ -45,16 +114,9 @@ def _running_threads(process) -> int:
         for task in os.listdir(f"/proc/{process.pid}/task"):
             with open(f"/proc/{process.pid}/task/{task}/stat") as file:
                 count += file.read().rsplit(")", 1)[1].split()[0] == "R"
-    except (OSError, IndexError, ValueError):
+    except (OSError, IndexError, ValueError, AssertionError):
         pass
     return count
-
-
-def _signal_pausable(signum: int) -> None:
-    """Send ``signum`` to each live :data:`pausable` helper (a child of this process: alive, its pid is its own)."""
-    for process in list(pausable):
-        if process.is_alive():
-            os.kill(process.pid, signum)
 
 
 # idle_core reads the runnable tasks this many times, this many seconds apart, and takes the fewest: a task that is
@@ -65,16 +127,16 @@ LOAD_GAP = 0.002
 
 
 def _busy_tasks(loadavg: str) -> int:
-    """Runnable tasks now (the fourth field of ``loadavg``), less the runnable threads of :data:`pausable` helpers."""
+    """Runnable tasks now (the fourth field of ``loadavg``), less the runnable threads of pausable helpers."""
     with open(loadavg) as file:
         running = int(file.read().split()[3].split("/")[0])
-    return running - sum(map(_running_threads, pausable))
+    return running - sum(map(_running_threads, list(_pausable)))
 
 
 def idle_core(loadavg: str = "/proc/loadavg") -> bool:
     """Whether a core is idle now: fewer runnable tasks than cores (the fourth field of ``loadavg``, which counts
     this process too; the fewest of LOAD_READS reads; True where it cannot be read), not counting this process's own
-    helpers that pause for a child (:data:`pausable`). When every core is busy (other jobs on a shared machine,
+    helpers that pause for a child (:func:`add_pausable`). When every core is busy (other jobs on a shared machine,
     a pool of workers) a forked child only takes time from its caller, and its copy-on-write page faults cost more
     CPU than the serial run: on the project's 2-core machine with one other busy process, two 100k-triangle meshes
     took 1.76 s with the child against 1.62 s without (medians of 4, alternating)."""
@@ -97,16 +159,24 @@ def can_fork() -> bool:
     return may_fork() and idle_core()
 
 
-def leave_signals_to_caller() -> None:
-    """In a forked child: ignore Ctrl-C and die on SIGTERM (the caller stops its children)."""
+def leave_signals_to_caller(caller: int) -> None:
+    """In a child forked by process ``caller``: ignore Ctrl-C, die on SIGTERM (the caller stops its children) and
+    die with the caller (Linux's PR_SET_PDEATHSIG: a helper the caller paused and then lost, killed say, is not left
+    stopped)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != caller:  # the caller died before the request
+        os._exit(1)
 
 
-def _serve(conn, function: Callable, args: tuple) -> None:
+def _serve(conn, function: Callable, args: tuple, caller: int) -> None:
     """In the child: leave Ctrl-C to the caller (it stops the child), compute, send the answer; send nothing when
     the function raises or the answer cannot be pickled (the caller then computes it itself)."""
-    leave_signals_to_caller()
+    leave_signals_to_caller(caller)
     try:
         conn.send(function(*args))
     except BaseException:  # noqa: BLE001 - the caller recomputes and meets the error itself
@@ -120,7 +190,8 @@ class Forked:
     no answer) in the caller by :meth:`result`. ``fork``: None to fork when :func:`can_fork` (safe, and a core is
     idle), True when the caller has found a core idle itself (still only where :func:`may_fork`), False never.
 
-    While the child runs, this process's :data:`pausable` helpers are paused (they would take the child's core).
+    While the child runs, this process's pausable helpers (:func:`add_pausable`) are paused (they would take the
+    child's core); anything that waits on a helper must not run then.
     Use as a context manager: leaving it stops a child whose answer was not asked for (work that turned out not to
     be needed costs the other core only)."""
 
@@ -130,11 +201,11 @@ class Forked:
         if can_fork() if fork is None else fork and may_fork():
             context = multiprocessing.get_context("fork")
             ours, theirs = context.Pipe(duplex=False)
-            self._child = context.Process(target=_serve, args=(theirs, function, args), daemon=True)
+            self._child = context.Process(target=_serve, args=(theirs, function, args, os.getpid()), daemon=True)
             self._child.start()
             theirs.close()
             self._conn = ours
-            _signal_pausable(signal.SIGSTOP)
+            _pause(1)
 
     @property
     def forked(self) -> bool:
@@ -153,9 +224,9 @@ class Forked:
         return self._function(*self._args)
 
     def close(self) -> None:
-        """Stop the child (if it still runs), release the pipe and let the :data:`pausable` helpers go on."""
+        """Stop the child (if it still runs), release the pipe and let the pausable helpers go on."""
         if self._child is not None:
-            _signal_pausable(signal.SIGCONT)
+            _pause(-1)
             if self._child.is_alive():
                 self._child.terminate()
             self._child.join()

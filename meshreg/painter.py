@@ -11,7 +11,7 @@ as it is and costs no second import; each figure goes to the worker with fewer f
 ``meshes.png`` need not wait for ``registration.png`` (the second worker is used once it has said it is ready).
 
 The first worker is known to :mod:`meshreg.forked` as a helper that pauses for a child
-(:data:`meshreg.forked.pausable`), so that the registration may still fork its own child (the maps to the square of
+(:func:`meshreg.forked.add_pausable`), so that the registration may still fork its own child (the maps to the square of
 two large meshes, :class:`meshreg.forked.Forked`) while the worker warms up: the child takes the worker's core, and
 the worker goes on when the child is done. The caller keeps no thread of its own for the workers (jobs go through
 pipes that a thread of each worker empties), since a fork from a process with other threads is unsafe.
@@ -20,8 +20,8 @@ Elsewhere (or with one core, inside a daemonic pool worker, or while other Pytho
 unsafe) the figures are drawn in the calling process by :meth:`Painter.finish`. Either way every figure is written
 when :meth:`Painter.finish` returns, and an error drawing one is raised there; a figure a worker could not answer
 for (it died) is drawn in the caller. When the block of a painter ends by an exception the first worker is stopped
-at once (SIGTERM), not left to finish its start-up or a figure; the second (a child of the first, not of the caller)
-ends when its pipe closes, after the figure it may be drawing.
+at once (SIGTERM), not left to finish its start-up or a figure, and the second (its child) dies with it. Workers die
+with the process that forked them (PR_SET_PDEATHSIG), so none is left behind, running or paused.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import os
 import queue
 import threading
 
-from .forked import leave_signals_to_caller, may_fork, pausable
+from .forked import add_pausable, discard_pausable, leave_signals_to_caller, may_fork
 
 
 def _draw(name: str, args: tuple, kwargs: dict):
@@ -72,10 +72,12 @@ def _listen(conn) -> queue.SimpleQueue:
 
 
 def _fork_second(first, second) -> None:
-    """In the warmed first worker: fork the second worker, which says it is ready and serves ``second`` (and never
-    holds the first's pipe, so that the caller still sees the first die)."""
+    """In the warmed first worker: fork the second worker, which dies with the first, says it is ready and serves
+    ``second`` (and never holds the first's pipe, so that the caller still sees the first die)."""
+    me = os.getpid()
     if os.fork() == 0:
         try:
+            leave_signals_to_caller(me)
             first.close()
             second.send("ready")
             _serve(second, _listen(second))
@@ -84,14 +86,14 @@ def _fork_second(first, second) -> None:
     second.close()
 
 
-def _work(conn, second, callers: list) -> None:
+def _work(conn, second, callers: list, caller: int) -> None:
     """The first worker: close the caller's ends of the pipes (``callers``: a worker holding one would never see
     the caller close it), leave Ctrl-C and SIGTERM to the caller (it stops the worker), import the figures and draw
     a tiny one (:func:`meshreg.viz.warm_up`), fork the second worker when there is to be one, then draw each job
     and answer None or the error."""
     for end in callers:
         end.close()
-    leave_signals_to_caller()
+    leave_signals_to_caller(caller)
     jobs = _listen(conn)
     from . import viz
 
@@ -115,13 +117,15 @@ class Painter:
             context = multiprocessing.get_context("fork")
             pipes = [context.Pipe() for _ in range(min(workers, 2))]
             ends = ([theirs for _, theirs in pipes] + [None])[:2]
-            self._worker = context.Process(target=_work, args=(*ends, [ours for ours, _ in pipes]), daemon=True)
+            self._worker = context.Process(
+                target=_work, args=(*ends, [ours for ours, _ in pipes], os.getpid()), daemon=True
+            )
             self._worker.start()
             for ours, theirs in pipes:
                 theirs.close()
                 self._conns.append(ours)
                 self._sent.append([])
-            pausable.add(self._worker)
+            add_pausable(self._worker)
 
     @property
     def forked(self) -> bool:
@@ -175,7 +179,7 @@ class Painter:
         they have nothing left to do; before, their figures are abandoned."""
         if self._worker is None:
             return
-        pausable.discard(self._worker)
+        discard_pausable(self._worker)  # continued first: a stopped process does not die of SIGTERM
         self._worker.terminate()
         self._worker.join()
         for conn in self._conns:

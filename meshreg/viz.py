@@ -242,34 +242,11 @@ def plot_meshes(
     panels = [(first, f1, _face_means(c1, f1), f"first mesh ({len(v1)} vertices)")]
     pose = ", in the first's pose" if second_to_first is not None else ""
     panels.append((second, f2, _face_means(c2, f2), f"second mesh ({len(v2)} vertices){pose}"))
+    norm = None
     if distance is not None:
         norm, colors = _distance_colors(distance, f1)
         panels.append((first, f1, colors, "distance to the corresponding point"))
-    count = len(panels)
-    fig = Figure(figsize=(5.5 * count, 5.2), dpi=MESH_DPI)
-    right = 0.99 - 0.06 * (distance is not None)  # room for the colour bar
-    bottom, top = 0.02, 0.88
-    _, _, lefts, rights = GridSpec(
-        1, count, left=0.01, right=right, bottom=bottom, top=top, wspace=0.04
-    ).get_grid_positions(fig)
-    width, height = int(fig.bbox.width), int(fig.bbox.height)
-    above = offset_copy(fig.transFigure, fig=fig, y=6, units="points")  # where matplotlib puts an axes title
-    places = []
-    across = int(rights[0] * width) - int(round(lefts[0] * width))  # every panel as wide (one picture serves two)
-    for k, (*_, name) in enumerate(panels):
-        x0, y0 = int(round(lefts[k] * width)), int(round((1 - top) * height))
-        places.append((slice(y0, int((1 - bottom) * height)), slice(x0, x0 + across)))
-        fig.text(0.5 * (lefts[k] + rights[k]), top, name, transform=above, ha="center", va="baseline", fontsize=10)
-    if distance is not None:
-        from matplotlib import cm
-
-        bar = fig.add_axes((right + 0.005, bottom + 0.2 * (top - bottom), 0.008, 0.6 * (top - bottom)))
-        fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), cax=bar).set_label("fraction of sqrt(area)")
-    fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
-    # the text drawn by matplotlib, the panels' pixels put in place (nothing resampled, no axes to lay out)
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    pixels = np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3])
+    pixels, places = _mesh_figure_text([name for *_, name in panels], title, norm)
     pictures = {}  # the first mesh's picture (triangle per pixel, shading) serves its two panels
     for (rows, columns), (v, f, c, _) in zip(places, panels, strict=True):
         size = (columns.stop - columns.start, rows.stop - rows.start)
@@ -281,6 +258,37 @@ def plot_meshes(
     path = Path(path)
     Image.fromarray(pixels).save(path, format="png", compress_level=PNG_COMPRESSION)
     return path
+
+
+def _mesh_figure_text(names: list[str], title: str, norm) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
+    """The text of ``meshes.png`` drawn by matplotlib (panel names, title and, with the distance's ``norm``, its
+    colour bar) as 8-bit RGB pixels (h, w, 3), and where each panel's picture goes: (rows, columns), every panel as
+    wide (one picture can serve two)."""
+    count = len(names)
+    fig = Figure(figsize=(5.5 * count, 5.2), dpi=MESH_DPI)
+    right = 0.99 - 0.06 * (norm is not None)  # room for the colour bar
+    bottom, top = 0.02, 0.88
+    _, _, lefts, rights = GridSpec(
+        1, count, left=0.01, right=right, bottom=bottom, top=top, wspace=0.04
+    ).get_grid_positions(fig)
+    width, height = int(fig.bbox.width), int(fig.bbox.height)
+    above = offset_copy(fig.transFigure, fig=fig, y=6, units="points")  # where matplotlib puts an axes title
+    places = []
+    across = int(rights[0] * width) - int(round(lefts[0] * width))
+    for k, name in enumerate(names):
+        x0, y0 = int(round(lefts[k] * width)), int(round((1 - top) * height))
+        places.append((slice(y0, int((1 - bottom) * height)), slice(x0, x0 + across)))
+        fig.text(0.5 * (lefts[k] + rights[k]), top, name, transform=above, ha="center", va="baseline", fontsize=10)
+    if norm is not None:
+        from matplotlib import cm
+
+        bar = fig.add_axes((right + 0.005, bottom + 0.2 * (top - bottom), 0.008, 0.6 * (top - bottom)))
+        fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), cax=bar).set_label("fraction of sqrt(area)")
+    fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
+    # the text drawn by matplotlib, the panels' pixels put in place after (nothing resampled, no axes to lay out)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3]), places
 
 
 def _face_means(values: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -335,8 +343,8 @@ def render_mesh(points: np.ndarray, faces: np.ndarray, colors: np.ndarray, width
     the viewer; faces (m, 3); one colour (m, 3) each) drawn orthographically with a depth buffer: each pixel
     whose centre lies in a triangle takes the colour of the nearest such triangle; the rest is white. The mesh is
     scaled to fit with a margin of RENDER_MARGIN, the same scale along x and y."""
-    ids = _face_ids(points, faces, width, height)
-    return np.where(ids[..., None] >= 0, np.asarray(colors, float)[ids], 1.0)
+    palette = np.vstack([np.asarray(colors, float).reshape(-1, 3), np.ones((1, 3))])  # id -1: white
+    return palette[_face_ids(points, faces, width, height)]
 
 
 def _face_ids(points: np.ndarray, faces: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -1,4 +1,6 @@
 import os
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -22,7 +24,6 @@ def _refuse(x):
 
 
 def test_forked_answer_comes_from_a_child_and_equals_the_serial_one(monkeypatch):
-    monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)  # fork even on a busy machine
     with Forked(_pid_and_square, 7, fork=True) as job:
         started = job.forked
         pid, value = job.result()
@@ -94,16 +95,41 @@ def test_the_figure_worker_pauses_while_a_child_runs_and_is_not_counted_as_busy(
         loadavg.write_text("0.5 0.4 0.3 2/90 123\n")  # this process and the worker
         assert idle_core(str(loadavg))
         monkeypatch.setattr(meshreg.forked, "idle_core", lambda: True)
-        with Forked(_sleep_then_pid, 1.0) as job:
-            assert job.forked
-            assert _state(worker.pid, "T") == "T"  # stopped: the child has its core
-            assert job.result() != os.getpid()
-        assert _state(worker.pid, "S") != "T"
+        try:
+            with Forked(_sleep_then_pid, 1.0) as job:
+                assert job.forked
+                assert _state(worker.pid, "T") == "T"  # stopped: the child has its core
+                assert job.result() != os.getpid()
+            assert _state(worker.pid, "S") != "T"
+        finally:
+            os.kill(worker.pid, signal.SIGCONT)  # a failure above must not leave the worker stopped
         points = np.random.default_rng(0).random((5, 6, 3))
         painter.draw("plot_registration", points, points, [1.0, 0.5], tmp_path / "r.png")
         painter.finish()
     assert (tmp_path / "r.png").stat().st_size > 1000
     assert not worker.is_alive()
+
+
+def _helpers_seen():
+    return len(meshreg.forked._pausable)
+
+
+@pytest.mark.skipif(not may_fork(), reason="forks only on Linux with more than one core")
+def test_a_painter_closed_while_its_worker_is_paused_stops_it_and_a_child_has_no_helpers(monkeypatch):
+    import meshreg.painter
+    from meshreg.painter import Painter
+
+    monkeypatch.setattr(meshreg.painter, "may_fork", lambda: True)  # even if an earlier test left a thread running
+    monkeypatch.setattr(meshreg.forked, "may_fork", lambda: True)
+    painter = Painter()
+    worker = painter._worker
+    with Forked(_helpers_seen, fork=True) as seen, Forked(_sleep_then_pid, 3.0, fork=True):
+        assert seen.result() == 0 and _helpers_seen() == 1  # a forked child does not pause its parent's helpers
+        assert _state(worker.pid, "T") == "T"  # still paused: the other child runs
+        tic = time.perf_counter()
+        painter.close()  # continued, then stopped: a stopped process would not die of SIGTERM
+        assert time.perf_counter() - tic < 5
+    assert not worker.is_alive() and _helpers_seen() == 0
 
 
 def test_processes_is_checked():

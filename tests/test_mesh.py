@@ -362,6 +362,7 @@ def test_rendered_mesh_shows_the_nearest_triangle_where_it_covers_the_image():
     assert np.all(alone[inner, inner] == [0, 0, 1])
     covered = np.all(alone == [0, 0, 1], axis=2).mean()
     assert covered == pytest.approx((1 - 2 * RENDER_MARGIN) ** 2, abs=0.03)
+    assert np.all(render_mesh(points, np.zeros((0, 3), int), np.zeros((0, 3)), 10, 10) == 1.0)  # nothing: white
 
 
 def test_mesh_figure_puts_each_panel_in_its_place(tmp_path):
@@ -398,3 +399,6 @@ def test_inverse_of_a_warp_of_the_square_carries_its_images_back():
     assert np.abs(back[:-2] - places).max() < 2e-3  # linear between nodes 1/40 apart: second order in the spacing
     assert np.isnan(back[-2]).all()
     assert np.allclose(back[-1], [0.0, 1.0])
+    shrunk = 0.1 + 0.8 * np.stack([u, v], -1)  # h's images cover [0.1, 0.9]^2 only: the rest goes to the nearest node
+    outside = inverse_uv(shrunk, r, t, np.array([[0.02, 0.5], [0.95, 0.97]]))
+    assert np.allclose(outside, [[0.0, 0.5], [1.0, 1.0]])

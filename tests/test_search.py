@@ -93,3 +93,5 @@ def test_of_twin_starts_the_one_with_the_clearly_lower_coarse_residual_is_regist
         assert [s.symmetry for s in chosen] == [3, 5]  # whichever twin rounding put first; the far start left out
     even = [best, Start(4, None, 0.87, residual=0.34), Start(5, None, 0.87, residual=0.33)]
     assert [s.symmetry for s in close_starts(even, 3, 1.0)] == [3, 4]  # equally good twins: the first
+    identity_twin = [Start(2, None, 1.0, residual=0.3), Start(0, None, 1.0 + 1e-12, residual=1.0)]
+    assert [s.symmetry for s in close_starts(identity_twin, 3, 0.1)] == [2]  # put first, still replaced
