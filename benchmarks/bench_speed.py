@@ -76,7 +76,7 @@ def grid_rows(quick: bool) -> list[tuple[str, float, str]]:
                 (
                     f"  the 101^2 answer measured on the {size}^2 grid",
                     float("nan"),
-                    f"{measured:.3g} (E at {size}^2 / this: {result.energy / measured:.2f})",
+                    f"{measured:.3g} (E at {size}^2 / this: {result.energy / measured:.2g})",
                 )
             )
     return rows
