@@ -227,6 +227,7 @@ def gauss_newton(
                 delta = min(1.0, params.step_fraction * max_step(-jac_v))
                 g = enforce_boundary(ident + delta * field_)
                 candidate = enforce_boundary(interp.values(g[..., 0], g[..., 1]))
+                candidate, within = _held(objective, state.h, candidate, params.max_stretch, stretch_masks)
             if is_valid(candidate):
                 new_rotation = Rotation.from_rotvec(step[-3:]).as_matrix() @ state.rotation
                 e = objective.energy(new_rotation, candidate)

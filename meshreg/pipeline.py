@@ -258,9 +258,11 @@ def _dp_then_descent(
     with log.clock("dp"):
         rotation, h, _ = dp_stage(drive.work, options, both=both, rotation=rotation)
         log.step("dp", 0, energy_dp := drive.full_energy(rotation, h))
-    rotation, h = drive.descend(
-        rotation, valid_start(drive.work, h, options.advanced.max_stretch), [options.basis], log
-    )
+    start = valid_start(drive.work, h, options.advanced.max_stretch)
+    rotation, h = drive.descend(rotation, start, [options.basis], log)
+    if np.array_equal(h, start) and options.advanced.stuck_stretch_masks and options.solver != "gradient":
+        drive.masks = options.advanced.stuck_stretch_masks  # no step fit the stretch bound: mask it, here and after
+        rotation, h = drive.descend(rotation, start, [options.basis], log)
     energy, measured = drive.work.evaluate(rotation, h)
     return Candidate(objective, rotation, h, energy, log, energy_dp=energy_dp, pending=drive, measured=measured)
 

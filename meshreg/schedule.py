@@ -251,6 +251,7 @@ class Descent:
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
         # mode "gd" descends from the identity, not from a DP path: no stretch bound (docs/method.md, "Stretch bound")
         self.max_stretch = np.inf if options.mode == "gd" else options.advanced.max_stretch
+        self.masks = 0  # stretch masks of every level (Advanced.stuck_stretch_masks for a stuck DP start)
 
     def full_energy(self, rotation, h: np.ndarray) -> float:
         """E on the full grid of R and h given at the work grid's nodes (h carried up when the grids differ)."""
@@ -268,8 +269,11 @@ class Descent:
 
     def _bases(self, target: Objective, rotation, h, bases, log: Log):
         """Descend on ``target`` in the Riseth bases with KL in ``bases``, one after the other."""
+        masked = {}
+        if self.masks and self.solver is gauss_newton:  # masked steps are charged for the area they hide
+            masked = {"stretch_masks": self.masks, "area_charge": self.options.advanced.fine_area_charge}
         for kl in bases:
-            solve = partial(self.solver, basis=riseth_basis(kl, target.r, target.t))
+            solve = partial(self.solver, basis=riseth_basis(kl, target.r, target.t), **masked)
             steps = self.options.steps(max_stretch=self.max_stretch)
             rotation, h = alternate(target, rotation, h, solve, steps, self.rounds, log, "gd")
         return rotation, h
@@ -340,8 +344,8 @@ class Descent:
             cg_iterations=advanced.fine_cg_iterations if fine else advanced.cg_iterations,
             max_stretch=max_stretch,
         )
-        masks = advanced.fine_stretch_masks if fine and additive else 0
-        charge = advanced.fine_area_charge if fine else 0.0
+        masks = advanced.fine_stretch_masks if fine and additive else self.masks
+        charge = advanced.fine_area_charge if fine or self.masks else 0.0
         solve = partial(gauss_newton, basis=fields, additive=additive, stretch_masks=masks, area_charge=charge)
         rounds = (self.rounds[0], advanced.fine_rel_tol) if fine else self.rounds
         return alternate(target, rotation, h, solve, steps, rounds, log, "refine")
