@@ -33,50 +33,63 @@ class _Ordering:
         j = np.arange(k) + np.arange(self.band + 1)[:, None]  # row j + d of the ordered corner, column j
         self.inside = j < k
         self.flat = self.order[np.where(self.inside, j, 0)] * matrix.shape[1] + self.order
-        self.last = None  # (matrix, its lower band form): the last matrix seen, as given (not to be changed after)
 
     def lower(self, matrix: np.ndarray, k: int) -> np.ndarray | None:
         """The lower band form (band + 1, k) of the top left (k, k) corner of a contiguous (n, n) ``matrix`` in this
-        order (a new array); None when the corner has non-zero entries outside the band (found by counting them).
-        The last matrix's form is kept: a Levenberg-Marquardt step solves with one matrix and several shifts."""
-        if self.last is not None and self.last[0] is matrix:
-            return self.last[1].copy()
+        order; None when the corner has non-zero entries outside the band (found by counting them)."""
         lower = np.where(self.inside, matrix.ravel().take(self.flat), 0.0)
         inside = 2 * np.count_nonzero(lower) - np.count_nonzero(lower[0])
-        if inside != np.count_nonzero(matrix[:k, :k]):
-            return None
-        self.last = (matrix, lower.copy())
-        return lower
+        return lower if inside == np.count_nonzero(matrix[:k, :k]) else None
 
 
 _ORDERINGS: dict[tuple[int, int], _Ordering] = {}  # per (n, k), the last ordering: the next matrix is tried on it
 
 
-def banded_solve(matrix: np.ndarray, shift: np.ndarray, rhs: np.ndarray, border: int) -> np.ndarray | None:
-    """Solve (matrix + diag(shift)) x = rhs by a banded Cholesky factorization of its first n - ``border`` unknowns
-    (reordered by reverse Cuthill-McKee) and the Schur complement of the last ``border``.
+class BandedSystem:
+    """A symmetric (n, n) matrix prepared for banded solves with any diagonal shift (:func:`banded_system`): the
+    reverse Cuthill-McKee order of its first k = n - border unknowns and their lower band form, made once; a
+    Levenberg-Marquardt step solves with one matrix and several shifts."""
 
-    Parameters
-    ----------
-    matrix : ndarray, shape (n, n)
-        Symmetric; with ``shift`` positive definite.
-    shift : ndarray, shape (n,)
-    rhs : ndarray, shape (n,)
-    border : int
-        Unknowns at the end that may couple with every other one (not ordered into the band).
+    def __init__(self, matrix: np.ndarray, ordering: _Ordering, lower: np.ndarray, border: int):
+        self.matrix, self.ordering, self.lower, self.border = matrix, ordering, lower, border
 
-    Returns
-    -------
-    ndarray, shape (n,), or None
-        None when n < BANDED_MIN or the band is wider than BANDED_MAX_FRACTION n (the caller factorizes densely);
-        the ordering is kept per size and reused while the next matrix's non-zero entries stay within its band.
+    def solve(self, shift: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """x (n,) with (matrix + diag(shift)) x = rhs: banded Cholesky of the first k unknowns, the Schur complement
+        of the last ``border``.
 
-    Raises
-    ------
-    numpy.linalg.LinAlgError
-        When the matrix is not positive definite.
+        Raises
+        ------
+        numpy.linalg.LinAlgError
+            When the shifted matrix is not positive definite.
+        """
+        matrix, order = self.matrix, self.ordering.order
+        n = len(rhs)
+        k = n - self.border
+        lower = self.lower.copy()
+        lower[0] += shift[:k][order]
+        factor = scipy.linalg.cholesky_banded(lower, lower=True, check_finite=False)
+        right = np.column_stack([rhs[:k], matrix[:k, k:]])[order]
+        solved = scipy.linalg.cho_solve_banded((factor, True), right, check_finite=False)
+        x_local, coupling = solved[:, 0], solved[:, 1:]
+        x = np.empty(n)
+        if self.border:
+            edge = matrix[:k, k:][order]
+            schur = matrix[k:, k:] + np.diag(shift[k:]) - edge.T @ coupling
+            x[k:] = scipy.linalg.solve(schur, rhs[k:] - edge.T @ x_local, assume_a="pos")
+            x_local = x_local - coupling @ x[k:]
+        x[order] = x_local
+        return x
+
+
+def banded_system(matrix: np.ndarray, border: int) -> BandedSystem | None:
+    """``matrix`` (n, n), symmetric, prepared for :meth:`BandedSystem.solve`: its first n - ``border`` unknowns
+    reordered by reverse Cuthill-McKee into a band, the last ``border`` (which may couple with every other one)
+    left to a Schur complement.
+
+    Returns None when n < BANDED_MIN or the band is wider than BANDED_MAX_FRACTION n (the caller factorizes
+    densely); the ordering is kept per size and reused while the next matrix's non-zero entries stay within its band.
     """
-    n = len(rhs)
+    n = matrix.shape[0]
     k = n - border
     if n < BANDED_MIN:
         return None
@@ -90,17 +103,4 @@ def banded_solve(matrix: np.ndarray, shift: np.ndarray, rhs: np.ndarray, border:
         if ordering.band > BANDED_MAX_FRACTION * n:
             return None
         lower = ordering.lower(matrix, k)
-    order = ordering.order
-    lower[0] += shift[:k][order]
-    factor = scipy.linalg.cholesky_banded(lower, lower=True, check_finite=False)
-    right = np.column_stack([rhs[:k], matrix[:k, k:]])[order]
-    solved = scipy.linalg.cho_solve_banded((factor, True), right, check_finite=False)
-    x_local, coupling = solved[:, 0], solved[:, 1:]
-    x = np.empty(n)
-    if border:
-        edge = matrix[:k, k:][order]
-        schur = matrix[k:, k:] + np.diag(shift[k:]) - edge.T @ coupling
-        x[k:] = scipy.linalg.solve(schur, rhs[k:] - edge.T @ x_local, assume_a="pos")
-        x_local = x_local - coupling @ x[k:]
-    x[order] = x_local
-    return x
+    return BandedSystem(matrix, ordering, lower, border)

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
 from scipy.spatial.transform import Rotation
 
-from .banded import banded_solve
+from .banded import banded_system
 from .diffeo import enforce_boundary, is_valid, largest_step
 from .fields import TensorBasis, riseth_basis
 from .normal_system import NodeSystem
@@ -216,8 +216,9 @@ def gauss_newton(
         diag = normal.diagonal()
         scale = diag + 1e-12 * diag.sum() / (basis.size + 3)
         accepted = None
+        solve = _solver(normal, rhs, params.cg_iterations)
         for _ in range(params.max_backtracks):
-            step = _solve(normal, lam * scale, rhs, params.cg_iterations)
+            step = solve(lam * scale)
             within = None  # whether the candidate keeps the stretch bound, when already known
             if additive:
                 candidate = _unfolded(state.h, (fields @ step[:-3]).reshape(state.h.shape))
@@ -311,25 +312,35 @@ def _normal_equations(node_jac, basis: TensorBasis, rot_jac: np.ndarray, res: np
     return normal, -np.concatenate([g_nodes[selection], rot_jac.T @ res])
 
 
-def _solve(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:
-    """Solve (normal + diag(shift)) x = rhs (symmetric positive definite); x on the basis' coefficients and R.
+def _solver(normal, rhs: np.ndarray, cg_iterations: int):
+    """``solve(shift)``: x with (normal + diag(shift)) x = rhs (symmetric positive definite), x on the basis'
+    coefficients and R; what does not depend on the shift is prepared once (the damping loop tries several).
 
     Up to ``DENSE_LIMIT`` unknowns by Cholesky (banded after reordering where the fields couple locally:
-    :func:`~meshreg.banded.banded_solve`); beyond (the node basis, a :class:`NodeSystem`; a global basis of
+    :func:`~meshreg.banded.banded_system`); beyond (the node basis, a :class:`NodeSystem`; a global basis of
     KL >= 23, dense), by Jacobi-preconditioned CG stopped after ``cg_iterations``: the result is only a
     Gauss-Newton step, which the energy test accepts or rejects, so an inexact solve is enough.
     """
     if isinstance(normal, NodeSystem):
-        return normal.solve(shift, cg_iterations)
-    if normal.shape[0] <= DENSE_LIMIT:
-        dense = normal.toarray() if sp.issparse(normal) else normal
+        return lambda shift: normal.solve(shift, cg_iterations)
+    if normal.shape[0] > DENSE_LIMIT:
+        return lambda shift: _cg(normal, shift, rhs, cg_iterations)
+    dense = normal.toarray() if sp.issparse(normal) else normal
+    banded = banded_system(dense, ROTATION_UNKNOWNS)
+
+    def solve(shift: np.ndarray) -> np.ndarray:
         try:
-            banded = banded_solve(dense, shift, rhs, ROTATION_UNKNOWNS)
             if banded is not None:
-                return banded
+                return banded.solve(shift, rhs)
             return scipy.linalg.cho_solve(scipy.linalg.cho_factor(dense + np.diag(shift)), rhs)
         except np.linalg.LinAlgError:
             return np.linalg.lstsq(dense + np.diag(shift), rhs, rcond=None)[0]
+
+    return solve
+
+
+def _cg(normal, shift: np.ndarray, rhs: np.ndarray, cg_iterations: int) -> np.ndarray:
+    """x with (normal + diag(shift)) x = rhs by Jacobi-preconditioned CG, at most ``cg_iterations``."""
     if sp.issparse(normal):
         matrix = (normal + sp.diags(shift)).tocsr()
     else:

@@ -90,7 +90,7 @@ def test_limits_refuse_with_the_figure_and_force_lifts_them():
 
 
 def test_a_basis_beyond_the_memory_limit_is_refused_and_a_wide_one_solves():
-    from meshreg.descent import DENSE_LIMIT, _solve
+    from meshreg.descent import DENSE_LIMIT, _solver
 
     pair = paper_pairs(101, 101)[0]
     with pytest.raises(
@@ -100,7 +100,7 @@ def test_a_basis_beyond_the_memory_limit_is_refused_and_a_wide_one_solves():
     rng = np.random.default_rng(0)
     a = rng.normal(size=(DENSE_LIMIT + 10, DENSE_LIMIT + 10))
     normal, rhs = a @ a.T / len(a), rng.normal(size=len(a))  # a dense system: a global basis of KL >= 23
-    x = _solve(normal, np.full(len(a), 1.0), rhs, 500)
+    x = _solver(normal, rhs, 500)(np.full(len(a), 1.0))
     assert np.allclose((normal + np.eye(len(a))) @ x, rhs, atol=1e-6)
 
 
