@@ -125,11 +125,10 @@ def inverse_uv(h: np.ndarray, r: np.ndarray, t: np.ndarray, uv2: np.ndarray) -> 
     inverse = np.full(uv2.shape, np.nan)
     finite = np.flatnonzero(np.all(np.isfinite(uv2), axis=1))
     face, bary = locate(images, faces, uv2[finite])
-    found = face >= 0
-    inverse[finite[found]] = np.einsum("kc,kcx->kx", bary[found], nodes[faces[face[found]]])
-    if not found.all():
+    inverse[finite] = surface_points(nodes, faces, face, bary)
+    lost = finite[face < 0]
+    if len(lost):
         from scipy.spatial import cKDTree
 
-        lost = finite[~found]
         inverse[lost] = nodes[cKDTree(images).query(uv2[lost])[1]]
     return np.clip(inverse, 0, 1)

@@ -106,8 +106,9 @@ def locate(uv: np.ndarray, faces: np.ndarray, points: np.ndarray, tol: float = 1
 
 
 def surface_points(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
-    """Points (k, 3) on a mesh given by triangle ids (k,) and barycentric weights (k, 3); NaN where the id is -1."""
-    out = np.full((len(face), 3), np.nan)
+    """Points (k, d) on a mesh of vertices (n, d) given by triangle ids (k,) and barycentric weights (k, 3); NaN
+    where the id is -1."""
+    out = np.full((len(face), vertices.shape[1]), np.nan)
     ok = face >= 0
     corners = vertices[faces[face[ok]]]  # (k, 3 corners, 3)
     out[ok] = np.einsum("kc,kcx->kx", barycentric[ok], corners)
