@@ -37,17 +37,18 @@ def may_fork() -> bool:
 # runs and go on (SIGCONT) when it is done, and :func:`idle_core` does not count them as busy, since they give their
 # core to the child. A forked child starts with none (os.register_at_fork below).
 _pausable: dict = {}
-PR_SET_PDEATHSIG = 1  # prctl option: the signal a process gets when its parent dies (linux/prctl.h)
 _paused = 0  # Forked children running now: the helpers are paused while there is at least one
 _continued_at_exit = False  # whether the exit hook that continues the helpers is registered
 
 
 def _forget_pausable() -> None:
-    """Drop every pausable helper (in a forked child: they are not its children)."""
+    """Drop every pausable helper and the count of running children (in a forked child: neither is its own)."""
+    global _paused
     for fd in _pausable.values():
         if fd is not None:
             os.close(fd)
     _pausable.clear()
+    _paused = 0
 
 
 def add_pausable(process) -> None:
@@ -68,9 +69,9 @@ def add_pausable(process) -> None:
 
 def discard_pausable(process) -> None:
     """Stop treating ``process`` as pausable, continuing it first if it is paused."""
-    fd = _pausable.pop(process, "missing")
-    if fd == "missing":
+    if process not in _pausable:
         return
+    fd = _pausable.pop(process)
     _send(process, fd, signal.SIGCONT)
     if fd is not None:
         os.close(fd)
@@ -157,6 +158,9 @@ def idle_core(loadavg: str = "/proc/loadavg") -> bool:
 def can_fork() -> bool:
     """Whether :class:`Forked` would fork now (:func:`may_fork` and :func:`idle_core`)."""
     return may_fork() and idle_core()
+
+
+PR_SET_PDEATHSIG = 1  # prctl option: the signal a process gets when its parent dies (linux/prctl.h)
 
 
 def leave_signals_to_caller(caller: int) -> None:
