@@ -247,13 +247,11 @@ def plot_meshes(
         norm, colors = _distance_colors(distance, f1)
         panels.append((first, f1, colors, "distance to the corresponding point"))
     pixels, places = _mesh_figure_text([name for *_, name in panels], title, norm)
-    pictures = {}  # the first mesh's picture (triangle per pixel, shading) serves its two panels
+    pictures = {}  # the first mesh's picture (triangle per pixel, shading) serves its two panels, all equally sized
     for (rows, columns), (v, f, c, _) in zip(places, panels, strict=True):
-        size = (columns.stop - columns.start, rows.stop - rows.start)
-        key = (id(v), size)
-        if key not in pictures:
-            pictures[key] = _mesh_picture(v, f, *size)
-        ids, shade = pictures[key]
+        if id(v) not in pictures:
+            pictures[id(v)] = _mesh_picture(v, f, columns.stop - columns.start, rows.stop - rows.start)
+        ids, shade = pictures[id(v)]
         pixels[rows, columns] = _paint(ids, np.clip(c * shade[:, None], 0, 1))
     path = Path(path)
     Image.fromarray(pixels).save(path, format="png", compress_level=PNG_COMPRESSION)
