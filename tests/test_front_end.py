@@ -6,8 +6,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
-from meshreg.mesh.graph import edge_table, face_components, triangle_areas
+from meshreg.mesh.graph import edge_table, face_components, triangle_areas, turn_counts
 from meshreg.mesh.harmonic import HarmonicMap, factorize, laplacian_blocks
+from meshreg.mesh.ordering import minimum_degree, spatial_order
 from meshreg.mesh.resample import _node_range
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.mesh.topology import prepare_disk, unique_edges
@@ -82,6 +83,51 @@ def test_factorize_solves_in_the_given_order():
     rhs = np.random.default_rng(0).standard_normal((block.shape[0], 2))
     assert np.allclose(factorize(block).solve(rhs), spla.spsolve(block, rhs), rtol=1e-10, atol=1e-12)
     assert np.allclose(factorize(block).solve(rhs[:, 0]), spla.spsolve(block, rhs[:, 0]), rtol=1e-10, atol=1e-12)
+
+
+def _fill(matrix: sp.spmatrix, order: np.ndarray) -> int:
+    """Entries of L in SuperLU's LU of the matrix in the given order (no pivoting, no further ordering)."""
+    permuted = sp.csc_matrix(matrix)[order][:, order]
+    return spla.splu(permuted, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).L.nnz
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_minimum_degree_fills_no_more_than_superlus(seed):
+    v, f, _ = random_disk_mesh(bump(), 3000, seed=seed)
+    disk = prepare_disk(v, f)
+    block, _ = laplacian_blocks(disk, HarmonicMap(disk).interior, "mean-value")
+    order = minimum_degree(block)
+    assert np.array_equal(np.sort(order), np.arange(block.shape[0]))
+    superlu = spla.splu(sp.csc_matrix(block), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0)
+    natural = _fill(block, np.arange(block.shape[0]))
+    assert _fill(block, order) <= 1.1 * superlu.L.nnz
+    assert _fill(block, order) < 0.5 * natural
+
+
+def test_minimum_degree_of_odd_patterns():
+    rng = np.random.default_rng(3)
+    pattern = sp.random(200, 200, density=0.02, random_state=rng, format="csc")  # not symmetric, empty rows
+    for matrix in (pattern, sp.eye(5), sp.csc_matrix((0, 0)), sp.csc_matrix(np.ones((30, 30)))):
+        order = minimum_degree(matrix)
+        assert np.array_equal(np.sort(order), np.arange(matrix.shape[0]))
+    with pytest.raises(ValueError, match="square"):
+        minimum_degree(sp.csc_matrix((3, 4)))
+
+
+def test_spatial_order_keeps_neighbours_close():
+    rng = np.random.default_rng(4)
+    points = np.c_[rng.random((4000, 2)), np.zeros(4000)]
+    order = spatial_order(points)
+    assert np.array_equal(np.sort(order), np.arange(4000))
+    steps = np.linalg.norm(np.diff(points[order], axis=0), axis=1)
+    assert np.median(steps) < 0.05 < np.median(np.linalg.norm(np.diff(points, axis=0), axis=1))
+    assert np.array_equal(spatial_order(np.zeros((3, 3))), [0, 1, 2])
+
+
+def test_turn_counts():
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [2.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 1], [0, 1, 3]])
+    assert turn_counts(uv, faces) == (1, 1, 1)
 
 
 def test_node_range_is_a_binary_search():

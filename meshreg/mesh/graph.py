@@ -159,6 +159,24 @@ def side_lengths(points: np.ndarray, faces: np.ndarray, sides: int = 3) -> np.nd
     return _side_lengths(np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(faces, dtype=np.int64), sides)
 
 
+@numba.njit(cache=True)
+def _turn_counts(uv: np.ndarray, f: np.ndarray, tiny: float) -> tuple[int, int, int]:
+    positive = negative = degenerate = 0
+    for t in range(f.shape[0]):
+        a, b, c = f[t, 0], f[t, 1], f[t, 2]
+        signed = (uv[b, 0] - uv[a, 0]) * (uv[c, 1] - uv[a, 1]) - (uv[b, 1] - uv[a, 1]) * (uv[c, 0] - uv[a, 0])
+        positive += signed > 0
+        negative += signed < 0
+        degenerate += abs(signed) < tiny
+    return positive, negative, degenerate
+
+
+def turn_counts(uv: np.ndarray, faces: np.ndarray, tiny: float = 1e-14) -> tuple[int, int, int]:
+    """How many triangles (m, 3) of a planar layout uv (n, 2) turn counterclockwise, clockwise, and have twice
+    their area below ``tiny`` (degenerate)."""
+    return _turn_counts(np.ascontiguousarray(uv, dtype=float), np.ascontiguousarray(faces, dtype=np.int64), tiny)
+
+
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area of each triangle (m,) of vertices (n, 3) and faces (m, 3)."""
     return _areas(np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64))

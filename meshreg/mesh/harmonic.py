@@ -15,12 +15,13 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError
 from .boundary import sharp_corners
-from .graph import side_lengths
+from .graph import side_lengths, turn_counts
+from .ordering import minimum_degree, spatial_order
 from .topology import DiskMesh, loop_segments, triangle_areas
 
-# SuperLU's relaxed supernode size and panel width (its defaults: 5 and 10): a mesh Laplacian's elimination tree has
-# small supernodes, and these factorized the interior block of a 100k- (1M-) triangle terrain mesh about 20 % faster
-# (0.19 s against 0.23 s; 4.6 s against 5.5 s; CPU time on a shared machine)
+# SuperLU's relaxed supernode size and panel width (its defaults: 5 and 10). In the minimum degree order of a mesh
+# Laplacian's interior block, every pair from (1, 4) to (8, 8) factorized a 100k- (1M-) triangle terrain mesh within
+# the noise, 0.08-0.11 s (1.5-2.0 s) on a shared machine; small ones keep the factors' memory small.
 LU_RELAX = 1
 LU_PANEL = 4
 
@@ -229,44 +230,24 @@ def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
     return float(np.median(side_lengths(uv, faces)))
 
 
-@numba.njit(cache=True)
-def _breadth_first(indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """The unknowns (n,) in breadth-first order of a sparse matrix's graph (from unknown 0, then each further
-    component from its lowest unknown)."""
-    n = len(indptr) - 1
-    order, seen = np.empty(n, np.int64), np.zeros(n, np.bool_)
-    head = tail = 0
-    for root in range(n):
-        if seen[root]:
-            continue
-        seen[root], order[tail] = True, root
-        tail += 1
-        while head < tail:
-            i = order[head]
-            head += 1
-            for p in range(indptr[i], indptr[i + 1]):
-                if not seen[indices[p]]:
-                    seen[indices[p]], order[tail] = True, indices[p]
-                    tail += 1
-    return order
-
-
 class Factorization:
-    """Sparse LU of P A P^T, P a breadth-first order of A's graph; :meth:`solve` solves A x = b.
+    """Sparse LU of P A P^T, P the approximate minimum degree order of A + A^T (:func:`minimum_degree`);
+    :meth:`solve` solves A x = b.
 
-    Minimum degree breaks its ties by the order it is given: in breadth-first order neighbours sit close in memory,
-    and the LU of a 1M-triangle mesh's Laplacian, given in a random vertex order, took about 25 % less time
-    (3.8 s against 5.1 s, 0.15 s against 0.18 s at 100k; CPU time on a shared machine).
+    SuperLU factorizes in the given order (``permc_spec="NATURAL"``): its own minimum degree ordering cost more
+    than the factorization itself (about 2.7 of 4.5 s for the interior block of a 1M-triangle terrain mesh), ours
+    about 1.0 s for the same fill (17.1M entries in L), the factorization then 1.7 s. A zero pivot (a degenerate
+    mesh) falls back to SuperLU's default, pivoting factorization.
     """
 
     def __init__(self, a: sp.csc_matrix):
         a = sp.csc_matrix(a)
-        self.order = _breadth_first(a.indptr, a.indices)
+        self.order = minimum_degree(a)
         permuted = a[self.order][:, self.order].tocsc()
         try:
             self.lu = spla.splu(
                 permuted,
-                permc_spec="MMD_AT_PLUS_A",
+                permc_spec="NATURAL",
                 diag_pivot_thresh=0.0,
                 relax=LU_RELAX,
                 panel_size=LU_PANEL,
@@ -286,10 +267,9 @@ def factorize(a: sp.csc_matrix) -> Factorization:
     """Sparse LU of a Laplacian-like matrix (the interior block of a mesh Laplacian; an ARAP system).
 
     Both weightings give a matrix that needs no pivoting (mean-value: an M-matrix; cotangent: symmetric
-    positive definite), so the factorization keeps the diagonal and orders by minimum degree on A^T + A:
-    half the fill of SuperLU's default (COLAMD with partial pivoting) and about twice as fast on a 1M-face
-    mesh. Supernodes are kept small (LU_RELAX, LU_PANEL) and the unknowns are first put in breadth-first order
-    (:class:`Factorization`). A zero pivot (a degenerate mesh) falls back to the default, pivoting factorization.
+    positive definite), so the factorization keeps the diagonal in an approximate minimum degree order of
+    A^T + A (:class:`Factorization`), with small supernodes (LU_RELAX, LU_PANEL). A zero pivot (a degenerate
+    mesh) falls back to the default, pivoting factorization.
     """
     return Factorization(a)
 
@@ -315,7 +295,8 @@ class HarmonicMap:
         self.weights = weights
         inside = np.ones(len(disk.vertices), dtype=bool)
         inside[disk.boundary] = False
-        self.interior = np.flatnonzero(inside)
+        order = spatial_order(disk.vertices)
+        self.interior = order[inside[order]]  # the unknowns in space order: the assembly and ordering stay in cache
         self._blocks = None
 
     def assemble(self) -> tuple[sp.csc_matrix, sp.csr_matrix]:
@@ -343,13 +324,8 @@ class HarmonicMap:
         coupling, lu = self._system
         if lu is not None:
             uv[self.interior] = lu.solve(-(coupling @ uv[loop]))
-        d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
-        signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-        info = {
-            "corners": loop[corner_pos].tolist(),
-            "flipped": int(np.sum(signed < 0)),
-            "degenerate": int(np.sum(np.abs(signed) < 1e-14)),
-        }
+        _, negative, degenerate = turn_counts(uv, f)
+        info = {"corners": loop[corner_pos].tolist(), "flipped": negative, "degenerate": degenerate}
         return np.clip(uv, 0.0, 1.0), info
 
 

@@ -25,6 +25,7 @@ from ..options import Options
 from ..result import Registration
 from ..rotation import kabsch, similarity
 from .align import Cloud, icp
+from .graph import turn_counts
 from .harmonic import HarmonicMap, choose_corners
 from .overlap import Overlap, trim
 from .resample import resample_grid
@@ -143,7 +144,5 @@ def _on_the_rim(
 def _layout_report(uv: np.ndarray, faces: np.ndarray) -> dict:
     """Triangles of a layout on the square turned against most of the others ("flipped") and of about zero area
     ("degenerate"), as :class:`~meshreg.mesh.harmonic.HarmonicMap` reports them."""
-    d1, d2 = uv[faces[:, 1]] - uv[faces[:, 0]], uv[faces[:, 2]] - uv[faces[:, 0]]
-    signed = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    majority = 1.0 if np.sum(signed > 0) >= np.sum(signed < 0) else -1.0
-    return {"flipped": int(np.sum(majority * signed < 0)), "degenerate": int(np.sum(np.abs(signed) < 1e-14))}
+    positive, negative, degenerate = turn_counts(uv, faces)
+    return {"flipped": min(positive, negative), "degenerate": degenerate}
