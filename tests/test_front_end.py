@@ -114,6 +114,14 @@ def test_minimum_degree_of_odd_patterns():
         minimum_degree(sp.csc_matrix((3, 4)))
 
 
+def test_minimum_degree_puts_hubs_last():
+    path = sp.diags([np.ones(499), 4 * np.ones(500), np.ones(499)], [-1, 0, 1]).tolil()
+    path[:, 7] = path[7, :] = 1  # unknown 7 is coupled to all: a dense row, left out of the ordering
+    order = minimum_degree(path.tocsc())
+    assert order[-1] == 7 and np.array_equal(np.sort(order), np.arange(500))
+    assert _fill(path, order) < 3 * 500
+
+
 def test_spatial_order_keeps_neighbours_close():
     rng = np.random.default_rng(4)
     points = np.c_[rng.random((4000, 2)), np.zeros(4000)]

@@ -132,3 +132,30 @@ def test_register_meshes_returns_a_finite_result_or_an_input_error(data):
         return
     event("registered")
     assert _finite(mr.result) and np.isfinite(mr.uv1).all() and np.isfinite(mr.uv2).all()
+
+
+@seed(SEED)
+@SETTINGS
+@given(
+    size=st.integers(1, 60),
+    density=st.floats(0.0, 0.5),
+    symmetric=st.booleans(),
+    draw=st.integers(0, 2**32 - 1),
+)
+def test_minimum_degree_factorization_solves_any_pattern(size, density, symmetric, draw):
+    """Any pattern (empty, dense, one-sided, with hubs) gets a permutation, and the LU in its order solves the
+    system: the order changes the work, never the answer."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from meshreg.mesh.harmonic import factorize
+    from meshreg.mesh.ordering import minimum_degree
+
+    rng = np.random.default_rng(draw)
+    off = sp.random(size, size, density=density, random_state=rng, format="csc")
+    off = -(off + off.T) if symmetric else -off
+    matrix = (off + sp.diags(1.0 + abs(off).sum(axis=0).A1 + abs(off).sum(axis=1).A1)).tocsc()
+    order = minimum_degree(matrix)
+    assert np.array_equal(np.sort(order), np.arange(size))
+    rhs = rng.standard_normal((size, 2))
+    assert np.allclose(factorize(matrix).solve(rhs), spla.spsolve(matrix, rhs), rtol=1e-9, atol=1e-12)

@@ -15,6 +15,11 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
+# an unknown coupled to more than max(DENSE_MIN, DENSE_FACTOR sqrt(n)) others is ordered last, outside the quotient
+# graph (SuiteSparse AMD's default rule): a hub of 22,500 couplings in a 300 x 300 grid took the ordering from 0.05 s
+# to 0.9 s
+DENSE_MIN = 16
+DENSE_FACTOR = 10.0
 MORTON_BITS = 21  # bits per axis of the Morton (Z-order) code: 3 x 21 fill a 64-bit key
 
 
@@ -374,6 +379,10 @@ def minimum_degree(a: sp.spmatrix) -> np.ndarray:
     """Approximate minimum degree order (n,) of a square sparse matrix's symmetrized pattern A + A^T: the
     unknowns in the order to eliminate them, for a sparse LU or Cholesky factorization with little fill.
 
+    Unknowns coupled to more than max(DENSE_MIN, DENSE_FACTOR sqrt(n)) others (a hub: the centre of a filled
+    hole's fan, a global constraint) are left out of the ordering and put last, as SuiteSparse's AMD does: each
+    would otherwise be revisited at every elimination next to it.
+
     Examples
     --------
     An arrow matrix, one unknown coupled to all others: eliminated first it would fill the whole matrix; minimum
@@ -393,6 +402,12 @@ def minimum_degree(a: sp.spmatrix) -> np.ndarray:
     if n == 0:
         return np.zeros(0, np.int64)
     pe, rows = _symmetric_pattern(a.indptr.astype(np.int64), a.indices.astype(np.int64), n)
+    degree = np.diff(pe)
+    dense = degree > max(DENSE_MIN, DENSE_FACTOR * np.sqrt(n))
+    if dense.any():
+        kept = np.flatnonzero(~dense)
+        hubs = np.flatnonzero(dense)
+        return np.concatenate([kept[minimum_degree(a[kept][:, kept])], hubs[np.argsort(degree[hubs], kind="stable")]])
     cnz = int(pe[n])
     for room in (cnz // 5 + 2 * n, 2 * cnz + 4 * n):  # the first suffices in practice (Davis 2006, cs_amd)
         iw = np.empty(cnz + room, np.int64)
