@@ -92,7 +92,7 @@ def _fill(matrix: sp.spmatrix, order: np.ndarray) -> int:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_minimum_degree_fills_no_more_than_superlus(seed):
+def test_minimum_degree_fills_about_as_little_as_superlus(seed):
     v, f, _ = random_disk_mesh(bump(), 3000, seed=seed)
     disk = prepare_disk(v, f)
     block, _ = laplacian_blocks(disk, HarmonicMap(disk).interior, "mean-value")

@@ -409,10 +409,14 @@ def minimum_degree(a: sp.spmatrix) -> np.ndarray:
         hubs = np.flatnonzero(dense)
         return np.concatenate([kept[minimum_degree(a[kept][:, kept])], hubs[np.argsort(degree[hubs], kind="stable")]])
     cnz = int(pe[n])
-    for room in (cnz // 5 + 2 * n, 2 * cnz + 4 * n):  # the first suffices in practice (Davis 2006, cs_amd)
-        iw = np.empty(cnz + room, np.int64)
-        iw[:cnz] = rows[:cnz]
-        parent, nv, done = _amd(pe, iw, cnz)
-        if done:
-            return _postorder(parent, nv, n)
-    raise MemoryError("minimum_degree: the quotient graph outgrew its workspace")
+    # room after the pattern: the quotient graph never needs more than the pattern and n more entries (each new
+    # element's list is at most as long as the lists it absorbs, plus garbage collection); cs_amd's 1.2 cnz + 2n
+    iw = np.empty(cnz + cnz // 5 + 2 * n, np.int64)
+    iw[:cnz] = rows[:cnz]
+    parent, nv, done = _amd(pe, iw, cnz)
+    if not done:
+        raise AssertionError("minimum_degree: the quotient graph outgrew its workspace")
+    order = _postorder(parent, nv, n)
+    if len(order) != n:
+        raise AssertionError("minimum_degree: the assembly tree does not reach every unknown")
+    return order
