@@ -57,37 +57,17 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     trimmed1, _ = trim(first, overlap.first.signed)
     trimmed2, carry2 = trim(second, overlap.second.signed)
     target = Surface(trimmed1.vertices, trimmed1.faces)
-    pose = None
-    if overlap.regime == "rigid":
-        own = Surface(trimmed2.vertices, trimmed2.faces)
-        pose, _ = icp(
-            Cloud(own.vertices, own.normals), target, overlap.alignment.matrix, iterations=REFINE_ITERATIONS, exact=True
-        )
-        placed = own.moved(pose)  # the trimmed second in the first's frame
-    else:
-        placed = Surface(carry2 @ overlap.positions, trimmed2.faces)
+    placed, pose = _placed_second(trimmed2, carry2, target, overlap)
     positions = placed.vertices
     corners = choose_corners(trimmed1)
     uv1, corner_info = HarmonicMap(trimmed1, options.weights)(corners)
     closest, _, triangle, weights = target.project(positions)
     uv2 = _on_the_rim(trimmed2, positions, target.at(uv1, triangle, weights), trimmed1, corners, overlap.edge)
-    n = options.resolution
-    grid1 = resample_grid(trimmed1.vertices, trimmed1.faces, uv1, n, n)
-    # the second at the first's nodes: the point of the trimmed second whose place in the first's frame is closest
-    _, _, triangle, weights = placed.project(grid1.points.reshape(-1, 3))
-    grid2 = GridSurface.from_array(
-        placed.at(trimmed2.vertices, triangle, weights).reshape(n, n, 3),
-        grid1.r,
-        grid1.t,
-    )
+    grid1 = resample_grid(trimmed1.vertices, trimmed1.faces, uv1, options.resolution, options.resolution)
+    grid2 = _second_at_nodes(grid1, placed, trimmed2)
     objective = Objective(grid1, grid2)
     h = identity(grid1.r, grid1.t)
-    if pose is None:  # a warp: the rotation that minimizes E, the similarity fitted to the matches
-        rotation = kabsch(objective.best_rotation_covariance(h))
-        transform = similarity(rotation, grid1.points, grid2.points)
-    else:  # the same surface: the pose itself
-        transform = np.linalg.inv(pose)
-        rotation = transform[:3, :3] / np.cbrt(np.linalg.det(transform[:3, :3]))
+    rotation, transform = _rotation_and_transform(objective, h, pose, grid1, grid2)
     energy, residual = objective.evaluate(rotation, h)
     infos = {name: dict(info) for name, info in infos.items()}
     for name, disk in (("first", trimmed1), ("second", trimmed2)):
@@ -139,6 +119,38 @@ def _on_the_rim(
         if distance[k] <= RIM_SNAP * edge:
             out[loop[nearest[k]]] = square[k]
     return out
+
+
+def _placed_second(trimmed2: DiskMesh, carry2, target: Surface, overlap: Overlap) -> tuple[Surface, np.ndarray | None]:
+    """The trimmed second mesh in the first's frame, and the pose (4, 4) that put it there: by ICP onto the trimmed
+    first (``target``) from the overlap's alignment for a rigid overlap; else (an elastic one) its vertices carried
+    (``carry2``, sparse (k, n)) from the overlap's warped positions, and no pose."""
+    if overlap.regime != "rigid":
+        return Surface(carry2 @ overlap.positions, trimmed2.faces), None
+    own = Surface(trimmed2.vertices, trimmed2.faces)
+    pose, _ = icp(
+        Cloud(own.vertices, own.normals), target, overlap.alignment.matrix, iterations=REFINE_ITERATIONS, exact=True
+    )
+    return own.moved(pose), pose
+
+
+def _second_at_nodes(grid1: GridSurface, placed: Surface, trimmed2: DiskMesh) -> GridSurface:
+    """The second at the first's nodes: the point of the trimmed second whose place in the first's frame
+    (``placed``) is closest to each node of ``grid1``, on grid1's (r, t)."""
+    _, _, triangle, weights = placed.project(grid1.points.reshape(-1, 3))
+    points = placed.at(trimmed2.vertices, triangle, weights).reshape(*grid1.points.shape[:2], 3)
+    return GridSurface.from_array(points, grid1.r, grid1.t)
+
+
+def _rotation_and_transform(objective: Objective, h: np.ndarray, pose: np.ndarray | None, grid1, grid2):
+    """R (3, 3) and the similarity (4, 4) taking the first grid onto the second: for a warp (no ``pose``) the
+    rotation that minimizes E at h and the similarity fitted to the grids' matches; for the same surface the ICP
+    pose's inverse, and its rotation part."""
+    if pose is None:
+        rotation = kabsch(objective.best_rotation_covariance(h))
+        return rotation, similarity(rotation, grid1.points, grid2.points)
+    transform = np.linalg.inv(pose)
+    return transform[:3, :3] / np.cbrt(np.linalg.det(transform[:3, :3])), transform
 
 
 def _layout_report(uv: np.ndarray, faces: np.ndarray) -> dict:
