@@ -7,9 +7,9 @@ Warm runs: the numba kernels are compiled (or loaded from their cache) by small 
 runs a subset in under a minute (three of the paper's pairs at 101 x 101, sine 2-3 at 201 x 201, the mesh front
 end, two meshes through the API); the full run adds every paper pair, 401 x 401, the command line and the distance
 matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local processes (``--jobs``); ``--meshes``
-runs only the mesh rows (front end, API, whole command). ``--large``
-adds the front end of one mesh per size, each in a fresh process, with its peak memory (a 1M-triangle mesh takes
-about 10 s and 1 GB). Times on a shared machine vary by +-30 %.
+runs only the mesh rows (front end, API, whole command). ``--large`` adds the front end of one mesh per size, each
+in a fresh process, with its peak memory (a 1M-triangle mesh takes about 5 s and 0.6 GB), as generated (vertices in
+random order) and renumbered in space order. Times on a shared machine vary by +-30 %.
 """
 
 import argparse
@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 
 import meshreg
 from meshreg.mesh.corners import mesh_grids
+from meshreg.mesh.ordering import spatial_order
 from meshreg.mesh.samples import random_disk_mesh, terrain_function
 from meshreg.options import Options
 from meshreg.samples import paper_pairs
@@ -138,13 +139,26 @@ def _saved_mesh(faces: int, path: str) -> None:
     np.savez(path, vertices=vertices, faces=triangles)
 
 
-def _front_end_cost(path: str) -> tuple[int, float, float]:
+def _in_space_order(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same mesh with its vertices renumbered along a Morton curve and its faces sorted by their first vertex:
+    the order of a scanner's or a mesher's output, where neighbours have nearby numbers."""
+    order = spatial_order(vertices)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    faces = rank[faces]
+    return vertices[order], faces[np.argsort(faces.min(axis=1), kind="stable")]
+
+
+def _front_end_cost(path: str, space_order: bool) -> tuple[int, float, float]:
     """Triangles, seconds and peak memory (MB above the process's size before it, the peak reset there) of the front
-    end of the mesh in ``path``, run in a fresh process after a small warm-up."""
+    end of the mesh in ``path`` (with ``space_order``, renumbered by :func:`_in_space_order` first, untimed), run in a
+    fresh process after a small warm-up."""
     small = random_disk_mesh(terrain_function(), 500, seed=0)
     mesh_grids(*small[:2], Options())
     data = np.load(path)
     vertices, faces = data["vertices"], data["faces"]
+    if space_order:
+        vertices, faces = _in_space_order(vertices, faces)
     before = reset_peak()
     seconds, _ = timed(mesh_grids, vertices, faces, Options())
     return len(faces), seconds, peak_since(before)
@@ -152,22 +166,27 @@ def _front_end_cost(path: str) -> tuple[int, float, float]:
 
 def large_rows(sizes: list[int]) -> list[tuple[str, float, str]]:
     """The front end of one mesh per size (triangles), each in a fresh process: seconds and peak memory, and both
-    against the first size's (issue 17 asks for linear growth: at most 12x from 100k to 1M triangles)."""
-    rows, first = [], None
+    against the first size's (issue 17 asks for linear growth: at most 12x from 100k to 1M triangles). The
+    benchmark's vertices come in random order (random points, triangulated), the worst case for memory locality;
+    the same meshes renumbered in space order (:func:`_in_space_order`) follow, each against its own first size."""
+    rows = []
     context = multiprocessing.get_context("spawn")
     with tempfile.TemporaryDirectory() as folder:
-        for faces in sizes:
-            path = str(Path(folder) / f"mesh{faces}.npz")
+        paths = [str(Path(folder) / f"mesh{faces}.npz") for faces in sizes]
+        for faces, path in zip(sizes, paths, strict=True):
             with ProcessPoolExecutor(1, mp_context=context) as pool:
                 pool.submit(_saved_mesh, faces, path).result()
-            with ProcessPoolExecutor(1, mp_context=context) as pool:
-                count, seconds, memory = pool.submit(_front_end_cost, path).result()
-            first = first or (count, seconds, memory)
-            note = f"peak memory +{memory:.0f} MB"
-            if count != first[0]:
-                times, memories = seconds / first[1], memory / max(first[2], 1e-9)
-                note += f" (x{times:.1f} the time, x{memories:.1f} the memory at {first[0]})"
-            rows.append((f"mesh front end, {count} triangles, fresh process", seconds, note))
+        for space_order, label in ((False, "fresh process"), (True, "vertices in space order, fresh process")):
+            first = None
+            for path in paths:
+                with ProcessPoolExecutor(1, mp_context=context) as pool:
+                    count, seconds, memory = pool.submit(_front_end_cost, path, space_order).result()
+                first = first or (count, seconds, memory)
+                note = f"peak memory +{memory:.0f} MB"
+                if count != first[0]:
+                    times, memories = seconds / first[1], memory / max(first[2], 1e-9)
+                    note += f" (x{times:.1f} the time, x{memories:.1f} the memory at {first[0]})"
+                rows.append((f"mesh front end, {count} triangles, {label}", seconds, note))
     return rows
 
 
