@@ -1,5 +1,5 @@
 """Linear-time kernels of triangle meshes (numba): edge table, connected components, triangle normals and areas,
-side lengths.
+side lengths, and how a planar layout's triangles turn.
 
 Sorting 3m edge keys (``np.unique``) or building an n x n sparse adjacency for ``connected_components`` costs
 O(m log m) and several copies of the mesh; bucketing edges by their lower vertex and a union-find over the faces
