@@ -129,13 +129,25 @@ class Advanced:
         dropped at those edges' nodes, up to this many times (:func:`meshreg.descent.gauss_newton`). Default 3.
     stuck_stretch_masks : int
         Modes "auto" and "dp+gd", Gauss-Newton: when the descent from a DP answer accepts no step at all (every step
-        that lowers E breaks the stretch bound: the DP path lies on it), that start is descended again, and later
-        refined, with a step's move dropped at the offending edges' nodes up to this many times instead of the step
-        being refused, and its steps charged for the area they hide (``fine_area_charge``). Default 0 (off): such a
-        start keeps its DP answer. On the 20-surface collection of ``benchmarks/bench_matrix.py`` (101 x 101) 43 of
-        190 answers are such DP answers; with 3, 58 pairs end more than 1% lower (up to 66%), 5 up to 8% higher, the
-        mean E 0.878 -> 0.826, and every one of 7 changed pairs checked on 401 x 401 samplings is lower there too;
-        but the matrix takes 1.7x as long (1.97 -> 1.15 pairs/s) and the paper's sine 2-4 pairs 0.5 -> 0.8 s.
+        that lowers E breaks the stretch bound: the DP path lies on it) and that start is the one chosen for
+        refinement, it first descends again with a step's move dropped at the offending edges' nodes up to this many
+        times instead of the step being refused, its steps charged for the area they hide (``fine_area_charge``), for
+        at most ``stuck_iterations`` steps in ``stuck_rounds`` rounds; the DP answer is kept when that ends on the
+        mirror image of the second surface. The refinement levels then run as for any start. 0 = off: such a start
+        keeps its DP answer. Default 3. On the 190 pairs of ``benchmarks/bench_matrix.py``'s ``collection(20, 101)``
+        (43 answers were DP answers with 0), with the defaults: mean E 0.878 -> 0.850, median 0.881 -> 0.866, 46 pairs
+        more than 1% lower (up to 60%; the 11 checked on 401 x 401 samplings lower there too), none higher; the
+        matrix (jobs=2) at 1.72, 1.45, 1.58, 1.78 pairs/s against 1.52, 1.57, 1.54, 1.72 with 0, alternating. Paper
+        pairs: same-shape ones identical; sine2-3 g1/g2 0.3074 -> 0.3054 (but 0.3444 -> 0.3463 measured on 401 x
+        401), sine2-4 g2 0.5145 -> 0.5135 (401: 0.5296 -> 0.5251). Masking every stuck candidate (191 of 502), not
+        only the chosen one, and refining with masks too, the mean reached 0.826 but the matrix took 1.7x as long;
+        the chosen one alone, masked without a cap, 0.844 at 0.87-0.91x the pairs/s; without the mirror check
+        collection pair 1-19 ended 7.9% higher.
+    stuck_iterations : int
+        Most Gauss-Newton steps per round of that masked descent. Default 3 (a plain descent after 3 masked steps
+        accepted a step from 1 of 191 stuck candidates: the answer stays on the bound, so none follows).
+    stuck_rounds : int
+        Most rounds (descent, then Kabsch) of that masked descent. Default 1.
     fine_area_charge : float
         That node level: a step must lower E + k (1 - A), A the share of the second surface's area that the chords
         of the cells carry (:meth:`meshreg.objective.Objective.carried_area`; 1 in the continuum for every h), k this
@@ -205,7 +217,9 @@ class Advanced:
     fine_rel_tol: float = 0.05
     fine_cg_iterations: int = 30
     fine_stretch_masks: int = 3
-    stuck_stretch_masks: int = 0
+    stuck_stretch_masks: int = 3
+    stuck_iterations: int = 3
+    stuck_rounds: int = 1
     fine_area_charge: float = 2.0
     refine_rel_tol: float = 1e-2
     choice_window: float = 0.1
@@ -229,6 +243,8 @@ class Advanced:
             _integer(name, getattr(self, name), 1, 1_000_000)
         _integer("fine_stretch_masks", self.fine_stretch_masks, 0, 1_000_000)
         _integer("stuck_stretch_masks", self.stuck_stretch_masks, 0, 1_000_000)
+        _integer("stuck_iterations", self.stuck_iterations, 1, 1_000_000)
+        _integer("stuck_rounds", self.stuck_rounds, 1, 1_000_000)
         _integer("processes", self.processes, 1, 2)
         for name in (
             "round_tol",

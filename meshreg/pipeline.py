@@ -260,9 +260,8 @@ def _dp_then_descent(
         log.step("dp", 0, energy_dp := drive.full_energy(rotation, h))
     start = valid_start(drive.work, h, options.advanced.max_stretch)
     rotation, h = drive.descend(rotation, start, [options.basis], log)
-    if np.array_equal(h, start) and options.advanced.stuck_stretch_masks and options.solver != "gradient":
-        drive.masks = options.advanced.stuck_stretch_masks  # no step fit the stretch bound: mask it, here and after
-        rotation, h = drive.descend(rotation, start, [options.basis], log)
+    # no step fit the stretch bound: should this start be refined, it first descends with stretch masks
+    drive.stuck = options.solver != "gradient" and options.advanced.stuck_stretch_masks > 0 and np.array_equal(h, start)
     energy, measured = drive.work.evaluate(rotation, h)
     return Candidate(objective, rotation, h, energy, log, energy_dp=energy_dp, pending=drive, measured=measured)
 

@@ -251,7 +251,7 @@ class Descent:
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
         # mode "gd" descends from the identity, not from a DP path: no stretch bound (docs/method.md, "Stretch bound")
         self.max_stretch = np.inf if options.mode == "gd" else options.advanced.max_stretch
-        self.masks = 0  # stretch masks of every level (Advanced.stuck_stretch_masks for a stuck DP start)
+        self.stuck = False  # the descent from the DP answer accepted no step: polish() first runs unstick()
 
     def full_energy(self, rotation, h: np.ndarray) -> float:
         """E on the full grid of R and h given at the work grid's nodes (h carried up when the grids differ)."""
@@ -267,16 +267,34 @@ class Descent:
         """Energies are kept for the full grid only."""
         return log if target is self.objective else log.scratch()
 
-    def _bases(self, target: Objective, rotation, h, bases, log: Log):
-        """Descend on ``target`` in the Riseth bases with KL in ``bases``, one after the other."""
+    def _bases(self, target: Objective, rotation, h, bases, log: Log, masks: int = 0, cap: tuple = ()):
+        """Descend on ``target`` in the Riseth bases with KL in ``bases``, one after the other; with ``masks`` > 0
+        (Gauss-Newton) a step's move is dropped at over-stretched edges up to that many times, and the step is
+        charged for the area it hides; ``cap`` = (most iterations per round, most rounds) instead of the usual."""
         masked = {}
-        if self.masks and self.solver is gauss_newton:  # masked steps are charged for the area they hide
-            masked = {"stretch_masks": self.masks, "area_charge": self.options.advanced.fine_area_charge}
+        if masks and self.solver is gauss_newton:
+            masked = {"stretch_masks": masks, "area_charge": self.options.advanced.fine_area_charge}
+        iterations, rounds = cap or (self.options.advanced.max_iterations, self.rounds[0])
         for kl in bases:
             solve = partial(self.solver, basis=riseth_basis(kl, target.r, target.t), **masked)
-            steps = self.options.steps(max_stretch=self.max_stretch)
-            rotation, h = alternate(target, rotation, h, solve, steps, self.rounds, log, "gd")
+            steps = self.options.steps(max_stretch=self.max_stretch, max_iterations=iterations)
+            rotation, h = alternate(target, rotation, h, solve, steps, (rounds, self.rounds[1]), log, "gd")
         return rotation, h
+
+    def unstick(self, rotation, h, log: Log):
+        """The basis descent again from a DP answer where it accepted no step (its path lies on the stretch bound),
+        with ``Advanced.stuck_stretch_masks`` stretch masks, at most ``stuck_iterations`` steps in ``stuck_rounds``
+        rounds; the DP answer is kept when the masked steps end on the mirror image of the second surface."""
+        advanced = self.options.advanced
+        masks, cap = advanced.stuck_stretch_masks, (advanced.stuck_iterations, advanced.stuck_rounds)
+        trial = Log(log.callback, log.timings)  # its energies join the log only when its answer is kept
+        trial.energies, trial.stages = list(log.energies), list(log.stages)
+        with log.clock("gd"):
+            moved = self._bases(self.work, rotation, h, [self.options.basis], self._log(self.work, trial), masks, cap)
+        if self.work.residual(*moved).mirrored:
+            return rotation, h
+        log.energies, log.stages = trial.energies, trial.stages
+        return moved
 
     def descend(self, rotation, h, bases, log: Log):
         """Descend from (R, h) on the work grid (h at its nodes) in the Riseth bases KL in ``bases``.
@@ -288,6 +306,9 @@ class Descent:
 
     def polish(self, rotation, h, log: Log):
         """The refinement levels from (R, h) on the work grid; returns R and h at the full grid's nodes."""
+        if self.stuck:
+            self.stuck = False
+            rotation, h = self.unstick(rotation, h, log)
         objective, work, refine = self.objective, self.work, self.options.refine == "nodes"
         tic = time.perf_counter()
         levels = []
@@ -344,8 +365,8 @@ class Descent:
             cg_iterations=advanced.fine_cg_iterations if fine else advanced.cg_iterations,
             max_stretch=max_stretch,
         )
-        masks = advanced.fine_stretch_masks if fine and additive else self.masks
-        charge = advanced.fine_area_charge if fine or self.masks else 0.0
+        masks = advanced.fine_stretch_masks if fine and additive else 0
+        charge = advanced.fine_area_charge if fine else 0.0
         solve = partial(gauss_newton, basis=fields, additive=additive, stretch_masks=masks, area_charge=charge)
         rounds = (self.rounds[0], advanced.fine_rel_tol) if fine else self.rounds
         return alternate(target, rotation, h, solve, steps, rounds, log, "refine")
