@@ -12,6 +12,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .locate import uv_triangle
+
 
 @numba.njit(cache=True)
 def _edge_table(faces: np.ndarray, n: int):
@@ -163,8 +165,7 @@ def side_lengths(points: np.ndarray, faces: np.ndarray, sides: int = 3) -> np.nd
 def _turn_counts(uv: np.ndarray, f: np.ndarray, tiny: float) -> tuple[int, int, int]:
     positive = negative = degenerate = 0
     for t in range(f.shape[0]):
-        a, b, c = f[t, 0], f[t, 1], f[t, 2]
-        signed = (uv[b, 0] - uv[a, 0]) * (uv[c, 1] - uv[a, 1]) - (uv[b, 1] - uv[a, 1]) * (uv[c, 0] - uv[a, 0])
+        signed = uv_triangle(uv, f, t)[6]
         positive += signed > 0
         negative += signed < 0
         degenerate += abs(signed) < tiny
