@@ -290,11 +290,16 @@ class HarmonicMap:
             raise InputError("weights must be 'mean-value' or 'cotangent'")
         self.disk = disk
         self.weights = weights
-        inside = np.ones(len(disk.vertices), dtype=bool)
-        inside[disk.boundary] = False
-        order = spatial_order(disk.vertices)
-        self.interior = order[inside[order]]  # the unknowns in space order: the assembly and ordering stay in cache
         self._blocks = None
+
+    @cached_property
+    def interior(self) -> np.ndarray:
+        """The interior vertices (the unknowns, (ni,)) in space order (:func:`spatial_order`): the assembly and
+        the ordering then stay in cache. Found at the first use, like the LU."""
+        inside = np.ones(len(self.disk.vertices), dtype=bool)
+        inside[self.disk.boundary] = False
+        order = spatial_order(self.disk.vertices)
+        return order[inside[order]]
 
     def assemble(self) -> tuple[sp.csc_matrix, sp.csr_matrix]:
         """The Laplacian's interior block (i, i), CSC, and its coupling to the boundary loop (i, b), CSR
