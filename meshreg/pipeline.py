@@ -228,7 +228,8 @@ def _params(options: Options, best: Candidate, starts: list[Start], candidates: 
                 "coarse_energy": None if np.isnan(s.energy) else float(s.energy),
                 "energy": float(c.energy),
                 "residual": c.residual().plus,
-                "refined": c is best,
+                "refined": c.pending is None,
+                "chosen": c is best,
             }
             for s, c in zip(starts, candidates, strict=True)
         ],

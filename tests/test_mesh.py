@@ -335,7 +335,7 @@ def test_nearly_symmetric_sheet_is_not_matched_with_its_mirror_image():
     mr = register_meshes(first, second, Options(resolution=61, bend_window=0.0))
     assert mr.result.energy < 0.006
     assert angle_between(mr.result.rotation, rot) < 2.0 and not mr.result.mirrored
-    chosen = next(s for s in mr.result.params["starts"] if s["refined"])
+    chosen = next(s for s in mr.result.params["starts"] if s["chosen"])
     assert mr.result.params["mirror"]["coarse_energy"] < chosen["coarse_energy"]
     only_best = register_meshes(first, second, Options(resolution=61, max_starts=1, bend_window=0.0))
     assert only_best.result.energy == pytest.approx(mr.result.energy, rel=1e-6)

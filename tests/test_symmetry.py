@@ -67,7 +67,7 @@ def test_every_symmetry_kind_gives_zero_energy_and_zero_residual(kind, seed):
     rotations = [result.rotation] + [np.array(a["rotation"]) for a in result.alternatives]
     assert min(angle_between(r, rotation) for r in rotations) < 0.5
     # a mirror symmetry's trap was there (a mirrored start as good as the chosen one) and was not taken
-    chosen_coarse = next(s["coarse_energy"] for s in result.params["starts"] if s["refined"])
+    chosen_coarse = next(s["coarse_energy"] for s in result.params["starts"] if s["chosen"])
     mirror = result.params["mirror"]
     if kind in MIRROR_KINDS:
         assert mirror["coarse_energy"] == pytest.approx(chosen_coarse, rel=0.01) and not mirror["fits_better"]
@@ -87,6 +87,42 @@ def test_mirror_trap_of_a_point_symmetric_sheet_reaches_zero_energy():
     assert trap.residual(rotation, trap.identity).mirrored
     result = meshreg.register(first, second)
     assert result.symmetry != 3 and result.residual < 1e-3
+
+
+def _monkey_saddle(r, t, k=3):
+    """z = 0.3 Re (u + iv)^k over u, v in [-1, 1]."""
+    w = (2 * r - 1) + 1j * (2 * t - 1)
+    return np.stack([r, t, 0.3 * (w**k).real], -1)
+
+
+def _swirl_swapped(r, t):
+    """A smooth warp of the square composed with the swap (r, t) -> (t, r)."""
+    r, t = t, r
+    return r + 0.12 * np.sin(np.pi * r) * np.cos(np.pi * t), t + 0.10 * np.sin(np.pi * t) * np.sin(2 * np.pi * r)
+
+
+@pytest.mark.parametrize("k", [3, 5])
+def test_a_match_of_normals_only_is_not_taken(k):
+    """The monkey saddle against a copy under the anti-diagonal reflection tau has q(c o tau) = D q(c) (D a half
+    turn) without c o tau being congruent to c or -c: a start reaches E ~ 1e-7 there, wrong point by point. The
+    answer must be right against the exact surface, not only low in E."""
+    n = 41
+    r, t = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    rotation, shift = Rotation.random(random_state=500).as_matrix(), np.array([0.7, -1.1, 3.0])
+
+    def second(r, t):
+        return 2.3 * _monkey_saddle(*_swirl_swapped(r, t), k) @ rotation.T + shift
+
+    first = GridSurface.from_array(_monkey_saddle(r, t, k))
+    result = meshreg.register(first, GridSurface.from_array(second(r, t)))
+    assert result.energy < 1e-6 and result.residual < 0.01
+    hr, ht = np.moveaxis(result.h, -1, 0)
+    exact = second(hr, ht)  # the second surface, exactly, at the points h matches
+    moved = first.points @ result.transform[:3, :3].T + result.transform[:3, 3]
+    size = np.ptp(exact.reshape(-1, 3), axis=0).max()
+    assert np.abs(moved - exact).max() < 0.03 * size
+    chosen = [s for s in result.params["starts"] if s["chosen"]]
+    assert len(chosen) == 1 and chosen[0]["refined"]
 
 
 def test_pinning_an_alternative_reaches_it():
