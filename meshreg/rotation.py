@@ -74,6 +74,11 @@ def similarity(rotation: np.ndarray, source: np.ndarray, target: np.ndarray) -> 
     p, q = np.asarray(source, dtype=float).reshape(-1, 3), np.asarray(target, dtype=float).reshape(-1, 3)
     rp = (p - p.mean(axis=0)) @ rotation.T
     scale = float(np.sum(rp * (q - q.mean(axis=0))) / np.sum(rp * rp))
+    if not scale > 0:  # R does not fit the points (a bent pair): a negative s would make the transform a reflection
+        centred = q - q.mean(axis=0)
+        rotation = kabsch((p - p.mean(axis=0)).T @ centred)
+        rp = (p - p.mean(axis=0)) @ rotation.T
+        scale = float(np.sum(rp * centred) / np.sum(rp * rp))
     out = np.eye(4)
     out[:3, :3] = scale * rotation
     out[:3, 3] = q.mean(axis=0) - scale * rotation @ p.mean(axis=0)

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
 
 from meshreg.cell_jacobian import CellJacobian, gram_pattern
 from meshreg.descent import max_step
@@ -9,7 +10,7 @@ from meshreg.dp import _dp_table, _table_function, dp_surface_min, steps, strip_
 from meshreg.fields import bspline_basis, node_basis, riseth_basis
 from meshreg.normal_system import NodeSystem
 from meshreg.objective import Objective
-from meshreg.rotation import kabsch
+from meshreg.rotation import kabsch, similarity
 from meshreg.samples import paper_pairs
 from meshreg.spline import GridInterpolator
 from meshreg.srnf import cell_weights, energy_gradient_points, shape_function, shape_function_blocks
@@ -44,6 +45,21 @@ def test_kabsch_never_reflects():
     rot = kabsch(q.T @ mirrored)
     assert np.linalg.det(rot) == pytest.approx(1.0)
     assert np.allclose(rot @ rot.T, np.eye(3))
+
+
+def test_similarity_is_never_a_reflection():
+    """A rotation that does not fit the points (a strongly bent pair) would give a negative scale: a reflection.
+    The fit then takes the best rotation for the points themselves."""
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(200, 3)) * [3.0, 1.0, 0.3]
+    truth = Rotation.random(random_state=4).as_matrix()
+    q = 2.5 * p @ truth.T + [1.0, 2.0, 3.0]
+    flipped = truth @ np.diag([-1.0, -1.0, 1.0])  # a half turn from the truth: s R p fits q only with s < 0
+    for rotation, expected in ((truth, truth), (flipped, truth)):
+        out = similarity(rotation, p, q)
+        assert np.linalg.det(out[:3, :3]) > 0
+        np.testing.assert_allclose(out[:3, :3], 2.5 * expected, atol=1e-9)
+        np.testing.assert_allclose(p @ out[:3, :3].T + out[:3, 3], q, atol=1e-9)
 
 
 def test_riseth_basis_is_orthonormal_and_tangent():
