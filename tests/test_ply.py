@@ -80,15 +80,19 @@ def test_other_ply_layouts_are_left_to_trimesh(tmp_path):
 
 def test_written_ply_is_trimesh_layout_and_reads_back(tmp_path):
     vertices, faces = _mesh(1)
+    vertices = vertices + 1e6  # far from the origin: float32 would keep about 0.06 of a unit
     colors = np.random.default_rng(2).random((len(vertices), 3))
     write_ply(tmp_path / "ours.ply", vertices, faces, colors)
     rgba = np.hstack([np.clip(colors, 0, 1) * 255, np.full((len(colors), 1), 255)]).astype(np.uint8)
     trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False).export(tmp_path / "trimesh.ply")
     ours, theirs = ((tmp_path / name).read_bytes().split(b"\n") for name in ("ours.ply", "trimesh.ply"))
     assert ours[2].startswith(b"comment") and theirs[2].startswith(b"comment")
-    assert ours[:2] + ours[3:] == theirs[:2] + theirs[3:]  # the same file but for the comment naming the writer
+    # trimesh's layout but for the comment naming the writer and double positions (trimesh writes float)
+    header = [line.replace(b"double", b"float") for line in ours[: ours.index(b"end_header")]]
+    assert header[:2] + header[3:] == theirs[:2] + theirs[3 : theirs.index(b"end_header")]
     back = trimesh.load(tmp_path / "ours.ply", process=False)
-    np.testing.assert_array_equal(back.vertices, vertices.astype(np.float32))
+    np.testing.assert_array_equal(back.vertices, vertices)  # every bit of the positions
     np.testing.assert_array_equal(back.faces, faces)
     np.testing.assert_array_equal(back.visual.vertex_colors, rgba)
+    np.testing.assert_array_equal(read_ply(tmp_path / "ours.ply")[0], vertices)
     np.testing.assert_array_equal(read_ply(tmp_path / "ours.ply")[1], faces)

@@ -100,15 +100,15 @@ def read_ply(path) -> tuple[np.ndarray, np.ndarray] | None:
 
 def write_ply_bytes(vertices: np.ndarray, faces: np.ndarray, rgba: np.ndarray) -> bytes:
     """A binary little-endian PLY file of vertices (n, 3), triangles (m, 3) and vertex colours ``rgba`` (n, 4)
-    uint8: float32 positions, uchar RGBA, a uchar count (3) and int32 indices per face."""
-    vertex = np.zeros(len(vertices), dtype=[("xyz", "<f4", (3,)), ("rgba", "<u1", (4,))])
+    uint8: float64 positions, uchar RGBA, a uchar count (3) and int32 indices per face."""
+    vertex = np.zeros(len(vertices), dtype=[("xyz", "<f8", (3,)), ("rgba", "<u1", (4,))])
     vertex["xyz"], vertex["rgba"] = vertices, rgba
     face = np.zeros(len(faces), dtype=[("count", "<u1"), ("index", "<i4", (3,))])
     face["count"], face["index"] = 3, faces
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment written by meshreg\n"
         f"element vertex {len(vertices)}\n"
-        + "".join(f"property float {axis}\n" for axis in "xyz")
+        + "".join(f"property double {axis}\n" for axis in "xyz")
         + "".join(f"property uchar {channel}\n" for channel in ("red", "green", "blue", "alpha"))
         + f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
     )
