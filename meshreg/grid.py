@@ -59,7 +59,7 @@ def coordinates(values, what: str) -> np.ndarray:
         raise InputError(f"{what} are not numbers ({err})") from None
     bad = int(np.sum(~np.isfinite(array)))
     if bad:
-        raise InputError(f"{what} contain {bad} NaN or infinite values")
+        raise InputError(f"{what} contain {bad} NaN or infinite values: drop or repair those points first")
     return array
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .grid import GridSurface, read_grid
+from .grid import GridSurface, coordinates, read_grid
 
 
 @dataclass(frozen=True)
@@ -63,4 +63,4 @@ def _mesh(vertices: np.ndarray, faces: np.ndarray, name: str) -> Mesh:
         )
     if not np.issubdtype(faces.dtype, np.integer):
         raise InputError(f"{name}: faces must be integer vertex indices, got {faces.dtype}")
-    return Mesh(vertices.astype(float), faces.astype(np.int64), name)
+    return Mesh(coordinates(vertices, f"{name}: mesh vertex coordinates"), faces.astype(np.int64), name)

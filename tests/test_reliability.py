@@ -18,9 +18,11 @@ import pytest
 import trimesh
 
 import meshreg
+from meshreg.atlas_outputs import atlas_files
 from meshreg.batch import CHECKPOINT_SUFFIX, DistanceMatrix, distance_matrix
 from meshreg.cli import main
 from meshreg.errors import InputError, RunError
+from meshreg.files import RECORD_FILE
 from meshreg.grid import GridSurface, read_grid
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.mesh.topology import prepare_disk
@@ -357,7 +359,7 @@ def test_a_failed_write_leaves_neither_partial_nor_older_outputs(tmp_path, grids
     out = tmp_path / "out"
     args = ["register", grids / "a.npy", grids / "b.npy", "-o", out, "-q", "--mode", "dp"]
     assert _run_main(capsys, *args, "--symmetric")[0] == 0
-    assert {p.name for p in out.iterdir()} == {"result.npz", "result_reverse.npz", "registration.png"}
+    assert {p.name for p in out.iterdir()} == {"result.npz", "result_reverse.npz", "registration.png", RECORD_FILE}
 
     def full_disk(self, path, **extra):
         Path(path).write_bytes(b"half a file")
@@ -370,7 +372,34 @@ def test_a_failed_write_leaves_neither_partial_nor_older_outputs(tmp_path, grids
     monkeypatch.undo()
     assert _run_main(capsys, *args, "--symmetric")[0] == 0
     assert _run_main(capsys, *args)[0] == 0
-    assert {p.name for p in out.iterdir()} == {"result.npz", "registration.png"}  # the older reverse result is gone
+    # the older reverse result is gone
+    assert {p.name for p in out.iterdir()} == {"result.npz", "registration.png", RECORD_FILE}
+
+
+def test_files_meshreg_did_not_write_are_never_replaced(tmp_path, grids, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "view.html").write_text("my notes")
+    (out / "result.npz").write_bytes(b"my result")
+    args = ["register", grids / "a.npy", grids / "b.npy", "-o", out, "-q", "--mode", "dp"]
+    code, err = _run_main(capsys, *args)
+    _one_line(err, 2, code, "result.npz exists and was not written by meshreg", "give another -o")
+    assert (out / "view.html").read_text() == "my notes" and (out / "result.npz").read_bytes() == b"my result"
+    (out / "result.npz").unlink()
+    code, err = _run_main(capsys, *args)
+    _one_line(err, 2, code, "view.html exists and was not written by meshreg")
+    (out / "view.html").unlink()
+    assert _run_main(capsys, *args)[0] == 0
+    assert _run_main(capsys, *args)[0] == 0  # its own outputs are replaced
+    time.sleep(0.01)
+    (out / "registration.png").write_bytes(b"my drawing over meshreg's")  # changed since meshreg wrote it
+    code, err = _run_main(capsys, *args)
+    _one_line(err, 2, code, "registration.png exists and was not written by meshreg")
+    assert (out / "registration.png").read_bytes() == b"my drawing over meshreg's"
+    (tmp_path / "atlas").mkdir()
+    (tmp_path / "atlas" / "template.ply").write_text("mine")
+    with pytest.raises(InputError, match="template.ply exists and was not written by meshreg"):
+        atlas_files([grids / "a.npy", grids / "b.npy"], tmp_path / "atlas")
 
 
 # 7. every parameter is validated once, up front, naming its valid range
@@ -488,6 +517,17 @@ def test_sigterm_leaves_no_process_behind(tmp_path):
 def test_values_that_would_register_wrong_are_refused(points, words):
     with pytest.raises(InputError, match=words):
         meshreg.register(points, sample(sine(2), 5, 5))
+
+
+@pytest.mark.parametrize(
+    "vertices, words",
+    [(1j, "complex"), (True, "booleans"), ("x", "not numbers")],
+)
+def test_mesh_vertices_that_are_not_real_numbers_are_refused(vertices, words):
+    v, f, _ = random_disk_mesh(bump(), 200, seed=0)
+    bad = np.asarray(v + vertices) if not isinstance(vertices, (bool, str)) else np.full(v.shape, vertices)
+    with pytest.raises(InputError, match=f"first: mesh vertex coordinates are {words}"):
+        meshreg.register((bad, f), (v, f))
 
 
 def test_hand_built_grid_surfaces_are_checked():
