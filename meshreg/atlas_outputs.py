@@ -25,6 +25,7 @@ import numpy as np
 from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
+from .files import not_ours, record
 from .options import Options
 from .shape_atlas import atlas
 from .shape_stats import canonical_correlations
@@ -121,6 +122,9 @@ def atlas_files(
     clash = {f.resolve() for f in files} & {f.resolve() for f in written}
     if clash:
         raise InputError(f"{sorted(clash)[0]} is an input file: write the atlas to another directory")
+    foreign = not_ours(out, [f.relative_to(out) for f in written])
+    if foreign:
+        raise InputError(f"{out / foreign[0]} exists and was not written by meshreg: move it or give another -o")
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / CHECKPOINT_DIR
     client = _client(scheduler) if scheduler else None
@@ -143,6 +147,7 @@ def atlas_files(
         if client is not None:
             client.close()
     written = WrittenAtlas(result, write_atlas(result, out))
+    record(out, [f.relative_to(out) for f in written.files])
     shutil.rmtree(checkpoint, ignore_errors=True)
     return written
 
@@ -157,6 +162,10 @@ def atlas_demo(out, *, count: int = 12, jobs: int | None = None, progress=None) 
 
     out = Path(out)
     inputs = out / "inputs"
+    made = [f"inputs/terrain_{k:02d}.ply" for k in range(count)] + ["inputs/parameters.csv"]
+    foreign = not_ours(out, made)
+    if foreign:
+        raise InputError(f"{out / foreign[0]} exists and was not written by meshreg: move it or give another -o")
     inputs.mkdir(parents=True, exist_ok=True)
     meshes, params = terrain_family(count)
     files = []
@@ -171,6 +180,7 @@ def atlas_demo(out, *, count: int = 12, jobs: int | None = None, progress=None) 
         header="member,relief,uplift",
         comments="",
     )
+    record(out, made)
     written = atlas_files(files, out, jobs=jobs, progress=progress)
     kept = [int(name.split("_")[-1]) for name in written.atlas.names]
     written.known = params[kept]

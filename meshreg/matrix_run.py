@@ -65,7 +65,7 @@ def check_matrix(files, out, options: Options, *, jobs: int | None = None, sched
         surface_kind(f)
     if out.suffix != ".npz":
         raise InputError(f"{out}: the matrix file must end in .npz")
-    output_dir(out.parent, [out.name, out.name + CHECKPOINT_SUFFIX, out.with_suffix(".png").name], files)
+    output_dir(out.parent, [out.name, out.name + CHECKPOINT_SUFFIX, out.with_suffix(".png").name], files, False)
     if scheduler is not None:
         check_scheduler(scheduler)
         return None

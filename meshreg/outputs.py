@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .files import output_dir, remove_outputs, staged, surface_kind, write_atomic
+from .files import output_dir, record, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
 from .painter import Painter
 from .result import Registration
@@ -57,8 +57,8 @@ class Written:
 
 def prepare_output(path, inputs: list[Path], names=OUTPUT_FILES) -> Path:
     """The output directory, checked before any computation (:func:`meshreg.files.output_dir`: made if missing;
-    refused when it is a file, under a file, not writable, or an output would overwrite an input or a directory),
-    with the outputs of an earlier run removed."""
+    refused when it is a file, under a file, not writable, or an output would overwrite an input, a directory or a
+    file meshreg did not write), with the outputs of an earlier run removed."""
     out = output_dir(path, names, inputs)
     remove_outputs(out, names)
     return out
@@ -259,6 +259,7 @@ def run_demo(out, options: Options | None = None, callback: Progress | None = No
     out = prepare_output(out, [], OUTPUT_FILES + DEMO_INPUTS)
     pair = (v1, f1, p1), (v2, f2, p2) = demo_pair()
     inputs = write_demo_meshes(out / "inputs", pair)[0].parent
+    record(out, DEMO_INPUTS)
     meshes = Mesh(v1, f1, "terrain_a"), Mesh(v2, f2, "terrain_b")
     written = write_mesh_registration(*meshes, out, options or Options(), callback, html)
     result = written.result
