@@ -246,11 +246,25 @@ def test_meshes_without_usable_triangles_are_refused(tmp_path):
     far.export(tmp_path / "far32.ply", encoding="binary")
     trimesh.Trimesh(v, f, process=False).export(tmp_path / "ok.ply")
     proc = _cli("register", tmp_path / "far32.ply", tmp_path / "ok.ply", "-o", tmp_path / "out", "-q")
-    _one_line(proc.stderr, 2, proc.returncode, "far32.ply", "degenerate", "float32", "origin")
+    _one_line(proc.stderr, 2, proc.returncode, "far32.ply", "float32", "origin", "lost its digits")
     with pytest.raises(InputError, match="no triangles"):
         prepare_disk(v, np.zeros((0, 3), dtype=int))
     with pytest.raises(InputError, match="all .* triangles of the mesh are degenerate"):
         prepare_disk(np.c_[np.arange(len(v)), np.zeros((len(v), 2))], f)
+
+
+def test_a_mesh_the_cleanup_would_mostly_remove_is_refused():
+    """A float32 copy 1e6 from the origin (float32 steps by 0.06 there) lost a third of its triangles to the collapse,
+    and the cleanup of the rest (pinched vertices, a largest piece) kept 2% of it and registered that."""
+    v, f, _ = random_disk_mesh(bump(), 1000, seed=2)
+    collapsed = (v + 1e6).astype(np.float32).astype(float)
+    with pytest.raises(InputError, match=r"float32 values 1.0e\+06 from the origin.*lost its digits"):
+        prepare_disk(collapsed, f)
+    assert len(prepare_disk((v + 10).astype(np.float32).astype(float), f).faces) == len(f)  # near: kept as it is
+    # five separate sheets: the largest piece is a fifth of the mesh, not the surface given
+    pieces = np.vstack([v + [3.0 * k, 0, 0] for k in range(5)]), np.vstack([f + k * len(v) for k in range(5)])
+    with pytest.raises(InputError, match=r"the cleanup kept only \d+ of the mesh's \d+ triangles .*largest of 5"):
+        prepare_disk(*pieces)
 
 
 # 5. a corrupt checkpoint says what is wrong and how to start over or salvage

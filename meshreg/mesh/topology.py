@@ -19,6 +19,14 @@ from .ply import read_ply
 # a mesh whose vertices sit further from the origin than this many times its size has lost the digits of its
 # shape if it was stored in float32 (7 digits): its triangles collapse
 FAR_FROM_ORIGIN = 1e4
+# the cleanup may drop at most this share of a mesh's triangles: beyond it the file is damaged rather than a disk with
+# a few defects (a float32 file far from the origin had 737 of its 2001 triangles collapse and kept 44 after the
+# cleanup), and what is left would register as another surface. Two pieces of equal size keep the larger, reported
+MAX_DROPPED = 0.75
+# float32 coordinates are refused when their spacing at the mesh's distance from the origin is above this fraction of
+# the median edge length: the triangles' shapes are then quantized beyond repair (a mesh 1e6 from the origin with edges
+# of 0.05 has a spacing of 0.0625, 125%; a float32 scan in UTM metres, 5e5 from the origin with edges of 0.5, 6%, kept)
+FLOAT32_STEP = 0.25
 
 
 def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
@@ -149,7 +157,8 @@ def prepare_disk(
     Raises
     ------
     InputError
-        NaN coordinates, non-manifold edges, a closed surface, several boundary loops (without hole filling).
+        NaN coordinates, non-manifold edges, a closed surface, several boundary loops (without hole filling), a
+        cleanup that would drop more than MAX_DROPPED of the triangles.
 
     Examples
     --------
@@ -162,7 +171,7 @@ def prepare_disk(
     """
     fill_holes = cleanup if fill_holes is None else fill_holes
     v, f = _checked_arrays(vertices, faces)
-    report = []
+    given, report = f, []
     f = _drop_degenerate(v, f, cleanup, report)
     aliases, pieces = _weld_pieces(v, f) if cleanup else (None, 0)
     if aliases is not None:
@@ -175,13 +184,14 @@ def prepare_disk(
     f, edges = _unchanged_or_new(_unpinched(f, cleanup, report, edges), f, edges)
     n = len(v)
     f, edges = _unchanged_or_new(_largest_component(f, n, cleanup, report), f, edges)
-    loops = _boundary_loops(f, edges)
+    loops, rim = _boundary_loops(f, edges), 0
     if len(loops) > 1 and fill_holes:
         v, f, added, rim = _fill_holes(v, f, loops)
         edges = _edges(f)
         report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
     if cleanup:
         f, edges = _unchanged_or_new(_without_ears(v, f, report, edges), f, edges)
+        _kept_enough(v, given, len(f) - rim, report)
     used = _used_vertices(f, len(v))
     original = used[used < n]
     if len(original) < n:
@@ -223,31 +233,67 @@ def _checked_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     if f.min() < 0 or f.max() >= len(v):
         raise InputError("faces refer to vertices that do not exist")
     check_scale(v, "mesh vertex coordinates")
+    _check_precision(v, f)
     return v, f
 
 
+def _check_precision(v: np.ndarray, f: np.ndarray) -> None:
+    """InputError when the coordinates are float32 values (a float32 file) whose spacing at their distance from the
+    origin is more than FLOAT32_STEP of the median edge length: the shape has lost its digits."""
+    if v.size == 0 or len(f) == 0 or not np.array_equal(v, v.astype(np.float32)):
+        return
+    offset = float(np.abs(v).max())
+    step = float(np.spacing(np.float32(offset)))
+    edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+    if step > FLOAT32_STEP * edge:
+        raise InputError(
+            f"the vertex coordinates are float32 values {offset:.1e} from the origin, where float32 steps by "
+            f"{step:.1e}, {step / max(edge, 1e-300):.0%} of the median edge length ({edge:.1e}): the shape has lost "
+            "its digits; save the mesh in double precision or moved to the origin"
+        )
+
+
 def _drop_degenerate(v: np.ndarray, f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
-    """Faces without the zero-area ones (or an error without ``cleanup``); an error when every one is."""
+    """Faces without the zero-area ones (or an error without ``cleanup``); an error when more than MAX_DROPPED of
+    them are (saying so when the mesh sits far from the origin: a float32 file's collapse)."""
     area = triangle_areas(v, f)
     bad = (area <= 1e-14 * max(area.max(), 1e-300)) | _repeated_corner(f)
     if not bad.any():
         return f
-    if bad.all():
-        used = v[np.unique(f)]
-        offset, size = float(np.abs(used).max()), float(np.linalg.norm(np.ptp(used, axis=0)))
-        hint = "; its vertices all coincide" if size == 0 else ""
-        if offset > FAR_FROM_ORIGIN * size:
-            hint += (
-                f"; they sit {offset:.1e} from the origin and span {size:.1e}: a float32 file keeps 7 digits, so a "
-                "small mesh far from the origin collapses (move it to the origin before saving it)"
-            )
-        raise InputError(f"all {len(f)} triangles of the mesh are degenerate (zero area){hint}")
+    if bad.sum() > MAX_DROPPED * len(f):
+        share = "all" if bad.all() else f"{int(bad.sum())} of the"
+        raise InputError(f"{share} {len(f)} triangles of the mesh are degenerate (zero area){_collapse_hint(v, f)}")
     if not cleanup:
         raise InputError(
             f"the mesh has {int(bad.sum())} degenerate (zero-area) triangles: remove them or allow cleanup"
         )
     report.append(f"removed {int(bad.sum())} degenerate triangles")
     return f[~bad]
+
+
+def _collapse_hint(v: np.ndarray, f: np.ndarray) -> str:
+    """Why a mesh's triangles may have collapsed: its used vertices all coincide, or sit far from the origin for
+    their span (a float32 file); "" otherwise."""
+    used = v[np.unique(f)]
+    offset, size = float(np.abs(used).max()), float(np.linalg.norm(np.ptp(used, axis=0)))
+    hint = "; its vertices all coincide" if size == 0 else ""
+    if offset > FAR_FROM_ORIGIN * size:
+        hint += (
+            f"; they sit {offset:.1e} from the origin and span {size:.1e}: a float32 file keeps 7 digits, so a "
+            "small mesh far from the origin collapses (move it to the origin before saving it)"
+        )
+    return hint
+
+
+def _kept_enough(v: np.ndarray, given: np.ndarray, kept: int, report: list) -> None:
+    """InputError when the cleanup kept fewer than 1 - MAX_DROPPED of the ``given`` faces (``kept`` of them left,
+    the hole fillings not counted), naming its first steps."""
+    if kept < (1 - MAX_DROPPED) * len(given):
+        steps = "; ".join(report[:2]) + ("; ..." if len(report) > 2 else "")
+        raise InputError(
+            f"the cleanup kept only {kept} of the mesh's {len(given)} triangles ({steps}){_collapse_hint(v, given)}: "
+            "it is too damaged to register as one disk; repair it first (cleanup=False names the first defect)"
+        )
 
 
 def _consistent_orientation(f: np.ndarray, cleanup: bool, report: list, edges: tuple) -> np.ndarray:
