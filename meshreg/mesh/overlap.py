@@ -101,7 +101,8 @@ class Overlap:
     edge : float
         The pair's edge length (the coarser mesh's median edge, first's units).
     rms : dict
-        RMS distance over the overlap of the pose ("rigid") and, when it was tried, of the warp ("warp").
+        RMS distance over the overlap of the pose ("pose"), of the pose moved along its weakest motion when it was
+        judged (:func:`probed_rms`, "probe") and, when it was tried, of the warp ("warp").
     coincide : float
         Fraction of the overlap's vertices within COINCIDE edge lengths of the other mesh.
     slide : float
@@ -156,7 +157,7 @@ def parameters() -> dict:
     }
     out = {name: getattr(module, name) for module, keys in names.items() for name in keys}
     local = ("SNAP", "BAND", "COINCIDE", "COINCIDE_ENOUGH", "TIGHT", "RIGID_RATIO", "FULL_TOLERANCE", "SAME_SCALE")
-    local += ("PINNED", "QUICK_SAMPLE")
+    local += ("PINNED", "PROBE", "QUICK_SAMPLE")
     out.update({name: globals()[name] for name in local})
     return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
 
@@ -415,19 +416,18 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
     edge = max(s1.edge, alignment.scale * s2.edge)
     posed = s2.moved(alignment.matrix)
     one, two, rms, coincide = _sides(first, second, s1, posed, edge)
-    slid = slide(s1, one.signed >= 0, rms) / edge
+    slid, spread = slide(s1, one.signed >= 0, rms) / edge, {"pose": rms}
     if rms <= TIGHT * edge:
         regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid)
-        if regime == "rigid" and probed_rms(s1, one.signed >= 0, posed, PROBE * edge) <= TIGHT * edge:
-            regime, reason = "whole", UNPINNED
+        if regime == "rigid":
+            spread["probe"] = probed_rms(s1, one.signed >= 0, posed, PROBE * edge)
+            regime, reason = ("rigid", "") if spread["probe"] > TIGHT * edge else ("whole", UNPINNED)
     elif _verdict("elastic", one, two, coincide, alignment.scale, slid)[0] == "full":
         regime, reason = "full", ""  # the pose already shows each mesh covering the other: no warp needed
     else:
         regime, reason = "deformed", ""
     seconds = time.perf_counter() - start
-    return Overlap(
-        regime, one, two, alignment, posed.vertices, edge, {"pose": rms}, coincide, slid, seconds, reason, s1
-    )
+    return Overlap(regime, one, two, alignment, posed.vertices, edge, spread, coincide, slid, seconds, reason, s1)
 
 
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
