@@ -25,7 +25,7 @@ import numpy as np
 from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
-from .files import not_ours, record
+from .files import existing_file, not_ours, record
 from .options import Options
 from .shape_atlas import atlas
 from .shape_stats import canonical_correlations
@@ -247,6 +247,9 @@ def morph_files(first, second, out, *, mode: int | None = None, frames: int = 24
         raise InputError(f"{out}: the morph is written as a GIF: give a file name ending in .gif")
     if frames < 2:
         raise InputError(f"frames must be at least 2, got {frames}")
+    for given in (first, second):
+        if given is not None:
+            existing_file(given)
     shapes, faces = morph_frames(first, second, mode=mode, frames=frames, options=options)
     out.parent.mkdir(parents=True, exist_ok=True)
     title = f"mode {mode}: -2 to +2 sd" if mode else f"{Path(first).stem} to {Path(second).stem}"

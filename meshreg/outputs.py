@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .files import output_dir, record, remove_outputs, staged, surface_kind, write_atomic
+from .files import not_ours, output_dir, record, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
 from .painter import Painter
 from .result import Registration
@@ -282,10 +282,14 @@ def view_outputs(out) -> Path:
     from .view import write_view
 
     out = Path(out)
+    if not out.is_dir():
+        raise InputError(f"{out}: no such directory: give the -o directory of a meshreg register run")
     names = [out / "first.ply", out / "second.ply", out / RESULT_FILE]
     missing = [str(p) for p in names if not p.is_file()]
     if missing:
         raise InputError(f"{out} holds no mesh registration (missing {', '.join(missing)}): run meshreg register first")
+    if not_ours(out, [VIEW_FILE]):
+        raise InputError(f"{out / VIEW_FILE} exists and was not written by meshreg: move it first")
     meshes = [trimesh.load(p, process=False, maintain_order=True) for p in names[:2]]
     with np.load(names[2], allow_pickle=False) as data:
         if "matched_first" not in data:
@@ -294,6 +298,8 @@ def view_outputs(out) -> Path:
         transform, energy = data["transform"], float(data["energy"])
     first, second = ((m.vertices, m.faces, m.visual.vertex_colors[:, :3] / 255.0) for m in meshes)
     title = f"E = {energy:.3g}: hover a point to see its match"
-    return write_atomic(
+    path = write_atomic(
         out / VIEW_FILE, lambda tmp: write_view(tmp, first, second, matches, np.linalg.inv(transform), title=title)
     )
+    record(out, [VIEW_FILE])
+    return path

@@ -533,6 +533,15 @@ def test_values_that_would_register_wrong_are_refused(points, words):
         meshreg.register(points, sample(sine(2), 5, 5))
 
 
+def test_a_missing_morph_input_is_named(tmp_path):
+    from meshreg.atlas_outputs import morph_files
+
+    with pytest.raises(InputError, match="nope.ply: no such file"):
+        morph_files(tmp_path / "nope.ply", None, tmp_path / "m.gif")
+    with pytest.raises(InputError, match="is a directory"):
+        morph_files(tmp_path, tmp_path, tmp_path / "m.gif")
+
+
 @pytest.mark.parametrize(
     "vertices, words",
     [(1j, "complex"), (True, "booleans"), ("x", "not numbers")],

@@ -44,10 +44,16 @@ def test_view_command_rewrites_the_page(registered):
     )
     assert proc.returncode == 0, proc.stderr
     assert (registered / "view.html").stat().st_size > 1_000_000
-    proc = subprocess.run(
-        [sys.executable, "-m", "meshreg.cli", "view", str(registered / "nothing")], capture_output=True, text=True
-    )
-    assert proc.returncode == 2 and "no mesh registration" in proc.stderr and "Traceback" not in proc.stderr
+    for where, words in ((registered / "nothing", "no such directory"), (registered.parent, "no mesh registration")):
+        proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "view", str(where)], capture_output=True, text=True)
+        assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr
+    page = (registered / "view.html").read_bytes()
+    (registered / "view.html").write_text("my page")  # not meshreg's any more: kept
+    view = [sys.executable, "-m", "meshreg.cli", "view", str(registered)]
+    proc = subprocess.run(view, capture_output=True, text=True)
+    assert proc.returncode == 2 and "was not written by meshreg" in proc.stderr
+    assert (registered / "view.html").read_text() == "my page"
+    (registered / "view.html").write_bytes(page)
 
 
 @pytest.mark.slow
