@@ -25,8 +25,9 @@ import numpy as np
 from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
-from .files import existing_file, not_ours, record
+from .files import existing_file
 from .options import Options
+from .ownership import claim, foreign_message, not_ours, record
 from .shape_atlas import atlas
 from .shape_stats import canonical_correlations
 
@@ -124,7 +125,7 @@ def atlas_files(
         raise InputError(f"{sorted(clash)[0]} is an input file: write the atlas to another directory")
     foreign = not_ours(out, [f.relative_to(out) for f in written])
     if foreign:
-        raise InputError(f"{out / foreign[0]} exists and was not written by meshreg: move it or give another -o")
+        raise InputError(foreign_message(out, foreign[0]))
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / CHECKPOINT_DIR
     client = _client(scheduler) if scheduler else None
@@ -146,6 +147,7 @@ def atlas_files(
     finally:
         if client is not None:
             client.close()
+    claim(out, [f.relative_to(out) for f in written])
     written = WrittenAtlas(result, write_atlas(result, out))
     record(out, [f.relative_to(out) for f in written.files])
     shutil.rmtree(checkpoint, ignore_errors=True)
@@ -165,8 +167,9 @@ def atlas_demo(out, *, count: int = 12, jobs: int | None = None, progress=None) 
     made = [f"inputs/terrain_{k:02d}.ply" for k in range(count)] + ["inputs/parameters.csv"]
     foreign = not_ours(out, made)
     if foreign:
-        raise InputError(f"{out / foreign[0]} exists and was not written by meshreg: move it or give another -o")
+        raise InputError(foreign_message(out, foreign[0]))
     inputs.mkdir(parents=True, exist_ok=True)
+    claim(out, made)
     meshes, params = terrain_family(count)
     files = []
     for k, (v, f) in enumerate(meshes):

@@ -5,9 +5,8 @@ never leaves a partial file or a mix of old and new ones.
   unknown suffix (listing the known ones) before anything is read.
 - :func:`output_dir` checks, before any computation, that a directory can take a run's outputs (made if missing;
   not a file, not under a file, writable, no directory in the way of an output, no output on an input, and no file
-  with an output's name that meshreg did not write there: :func:`not_ours`).
-- :func:`record` lists the files meshreg wrote in a directory (``.meshreg-outputs``): only those are ever replaced
-  or removed by a later run.
+  with an output's name that meshreg did not write there: :func:`meshreg.ownership.not_ours`).
+- only files meshreg wrote (:mod:`meshreg.ownership`) are ever replaced or removed by a later run.
 - :func:`write_atomic` writes one file under a temporary name in its directory, then renames it into place.
 - :func:`staged` writes a set of files into a temporary directory inside the output directory and moves them
   into place only when every one was written (the first file named last, so its presence means the set is
@@ -24,12 +23,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import InputError, RunError
+from .ownership import foreign_message, forget, not_ours, record
 
 GRID_SUFFIXES = (".npy", ".npz", ".txt", ".dat")  # .txt and .dat: the paper's text format
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
-# in a directory meshreg writes outputs into: the files it wrote there, one path (relative, with /) per line. A file
-# with an output's name that is not listed is the user's: it is never replaced or removed
-RECORD_FILE = ".meshreg-outputs"
 
 
 def reason(err: OSError) -> str:
@@ -66,8 +63,8 @@ def output_dir(path, names, inputs=(), own_only: bool = True) -> Path:
 
     Checked before any computation: ``path`` is not a file nor under one, can be made and written in, holds no
     directory where an output goes, no output would overwrite one of ``inputs`` and, with ``own_only``, no file has
-    an output's name without meshreg having written it there (:func:`not_ours`; a file named by the user, such as
-    the matrix's ``D.npz``, is checked with ``own_only`` False).
+    an output's name without meshreg having written it there (:func:`meshreg.ownership.not_ours`; the files named
+    by the user, such as the matrix's ``D.npz``, are checked with ``own_only`` False).
     """
     out = Path(path)
     if out.exists() and not out.is_dir():
@@ -88,10 +85,7 @@ def output_dir(path, names, inputs=(), own_only: bool = True) -> Path:
                 raise InputError(f"{out / parent} is a file where an output directory goes: move it or give another -o")
     foreign = not_ours(out, names) if own_only else []
     if foreign:
-        raise InputError(
-            f"{out / foreign[0]} exists and was not written by meshreg (meshreg replaces only the files it lists in "
-            f"{out / RECORD_FILE}): move it or give another -o"
-        )
+        raise InputError(foreign_message(out, foreign[0]))
     try:
         probe = tempfile.NamedTemporaryFile(dir=out, prefix=".meshreg-probe-")
     except OSError as err:
@@ -100,61 +94,14 @@ def output_dir(path, names, inputs=(), own_only: bool = True) -> Path:
     return out
 
 
-def _stamp(path: Path) -> str:
-    """A file's size and modification time (ns): what tells the file meshreg wrote from one put there later."""
-    info = path.lstat()
-    return f"{info.st_size} {info.st_mtime_ns}"
-
-
-def recorded(out) -> dict[str, str]:
-    """The files meshreg recorded writing in the directory ``out``: relative path -> :func:`_stamp` when written
-    (empty without a record)."""
-    try:
-        lines = (Path(out) / RECORD_FILE).read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError):
-        return {}
-    return dict(line.rsplit("\t", 1) for line in lines if "\t" in line)
-
-
-def _write_record(out, listed: dict[str, str]) -> None:
-    """The record of ``out`` holding ``listed`` (removed when empty)."""
-    path = Path(out) / RECORD_FILE
-    if not listed:
-        path.unlink(missing_ok=True)
-        return
-    text = "".join(f"{name}\t{stamp}\n" for name, stamp in sorted(listed.items()))
-    write_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-
-
-def record(out, names) -> None:
-    """Add the files ``names`` (relative to ``out``, just written there) to the record of what meshreg wrote."""
-    listed = recorded(out)
-    for name in names:
-        listed[Path(name).as_posix()] = _stamp(Path(out) / name)
-    _write_record(out, listed)
-
-
-def not_ours(out, names) -> list[str]:
-    """The ``names`` (relative to ``out``) that exist there as files meshreg did not write: not in its record, or
-    changed since (another size or modification time)."""
-    listed, foreign = recorded(out), []
-    for name in names:
-        path = Path(out) / name
-        if (path.is_file() or path.is_symlink()) and listed.get(Path(name).as_posix()) != _stamp(path):
-            foreign.append(str(name))
-    return foreign
-
-
 def remove_outputs(out: Path, names) -> None:
     """Remove the files ``names`` in ``out`` left by an earlier run, so that none of them can pass for this run's
-    (and drop them from the record)."""
+    (and drop them from the record of meshreg's outputs)."""
     for name in names:
         target = Path(out) / name
         if target.is_file() or target.is_symlink():
             target.unlink()
-    listed = recorded(out)
-    if any(Path(name).as_posix() in listed for name in names):
-        _write_record(out, {k: v for k, v in listed.items() if k not in {Path(n).as_posix() for n in names}})
+    forget(out, names)
 
 
 def write_atomic(path, write: Callable[[Path], object]) -> Path:
@@ -184,11 +131,11 @@ def staged(out: Path, names: list[str]) -> Iterator[Path]:
     moved = []
     try:
         yield stage
+        record(out, names, written=stage)  # before the moves: a run stopped between two leaves only its own files
         for name in [*names[1:], names[0]]:
             (Path(out) / name).parent.mkdir(parents=True, exist_ok=True)
             os.replace(stage / name, Path(out) / name)
             moved.append(Path(out) / name)
-        record(out, names)
     except BaseException as err:
         for path in moved:
             path.unlink(missing_ok=True)

@@ -12,6 +12,7 @@ from .errors import InputError, RunError
 from .files import output_dir, remove_outputs, surface_kind, write_atomic
 from .limits import check_jobs
 from .options import Options, check_scheduler
+from .ownership import claim, foreign_message, not_ours, record
 
 
 @dataclass
@@ -65,7 +66,10 @@ def check_matrix(files, out, options: Options, *, jobs: int | None = None, sched
         surface_kind(f)
     if out.suffix != ".npz":
         raise InputError(f"{out}: the matrix file must end in .npz")
-    output_dir(out.parent, [out.name, out.name + CHECKPOINT_SUFFIX, out.with_suffix(".png").name], files, False)
+    figure = out.with_suffix(".png").name
+    output_dir(out.parent, [out.name, out.name + CHECKPOINT_SUFFIX, figure], files, False)
+    if not_ours(out.parent, [figure]):  # the matrix file is named by the user; its figure is not
+        raise InputError(foreign_message(out.parent, figure))
     if scheduler is not None:
         check_scheduler(scheduler)
         return None
@@ -170,8 +174,11 @@ def _finished(out: Path, files: list[Path], options: Options) -> DistanceMatrix 
 
 
 def _figure(result: DistanceMatrix, path: Path) -> Path:
-    """The heat map, dendrogram and MDS figure of a matrix, written atomically."""
+    """The heat map, dendrogram and MDS figure of a matrix, written atomically and recorded as meshreg's."""
     from .viz import classical_mds, plot_matrix
 
     embedding = classical_mds(result.distance)
-    return write_atomic(path, lambda tmp: plot_matrix(result.names, result.distance, embedding, tmp))
+    claim(path.parent, [path.name])
+    write_atomic(path, lambda tmp: plot_matrix(result.names, result.distance, embedding, tmp))
+    record(path.parent, [path.name])
+    return path

@@ -6,11 +6,14 @@ stale or partial output.
 """
 
 import json
+import multiprocessing
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -18,15 +21,16 @@ import pytest
 import trimesh
 
 import meshreg
+from meshreg import files, ownership
 from meshreg.atlas_outputs import atlas_files
 from meshreg.batch import CHECKPOINT_SUFFIX, DistanceMatrix, distance_matrix
 from meshreg.cli import main
 from meshreg.errors import InputError, RunError
-from meshreg.files import RECORD_FILE
 from meshreg.grid import GridSurface, read_grid
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.mesh.topology import prepare_disk
 from meshreg.options import Options
+from meshreg.ownership import RECORD_FILE
 from meshreg.result import Registration
 from meshreg.samples import bump, helicoid, paper_pairs, sample, sine
 
@@ -246,7 +250,7 @@ def test_meshes_without_usable_triangles_are_refused(tmp_path):
     far.export(tmp_path / "far32.ply", encoding="binary")
     trimesh.Trimesh(v, f, process=False).export(tmp_path / "ok.ply")
     proc = _cli("register", tmp_path / "far32.ply", tmp_path / "ok.ply", "-o", tmp_path / "out", "-q")
-    _one_line(proc.stderr, 2, proc.returncode, "far32.ply", "float32", "origin", "lost its digits")
+    _one_line(proc.stderr, 2, proc.returncode, "far32.ply", "triangles collapsed", "float32", "move it to the origin")
     with pytest.raises(InputError, match="no triangles"):
         prepare_disk(v, np.zeros((0, 3), dtype=int))
     with pytest.raises(InputError, match="all .* triangles of the mesh are degenerate"):
@@ -258,7 +262,9 @@ def test_a_mesh_the_cleanup_would_mostly_remove_is_refused():
     and the cleanup of the rest (pinched vertices, a largest piece) kept 2% of it and registered that."""
     v, f, _ = random_disk_mesh(bump(), 1000, seed=2)
     collapsed = (v + 1e6).astype(np.float32).astype(float)
-    with pytest.raises(InputError, match=r"float32 values 1.0e\+06 from the origin.*lost its digits"):
+    with pytest.raises(
+        InputError, match=r"collapsed: .* float32 values 1.0e\+06 from the origin.*move it to the origin"
+    ):
         prepare_disk(collapsed, f)
     assert len(prepare_disk((v + 10).astype(np.float32).astype(float), f).faces) == len(f)  # near: kept as it is
     # five separate sheets: the largest piece is a fifth of the mesh, not the surface given
@@ -397,23 +403,64 @@ def test_files_meshreg_did_not_write_are_never_replaced(tmp_path, grids, capsys)
     (out / "result.npz").write_bytes(b"my result")
     args = ["register", grids / "a.npy", grids / "b.npy", "-o", out, "-q", "--mode", "dp"]
     code, err = _run_main(capsys, *args)
-    _one_line(err, 2, code, "result.npz exists and was not written by meshreg", "give another -o")
+    _one_line(err, 2, code, "result.npz is not on meshreg's list of its outputs", "your file", "give another -o")
     assert (out / "view.html").read_text() == "my notes" and (out / "result.npz").read_bytes() == b"my result"
     (out / "result.npz").unlink()
     code, err = _run_main(capsys, *args)
-    _one_line(err, 2, code, "view.html exists and was not written by meshreg")
+    _one_line(err, 2, code, "view.html is not on meshreg's list")
     (out / "view.html").unlink()
     assert _run_main(capsys, *args)[0] == 0
     assert _run_main(capsys, *args)[0] == 0  # its own outputs are replaced
-    time.sleep(0.01)
+    (out / "registration.png").touch()  # touched, or the folder copied: the content still says it is meshreg's
+    shutil.copytree(out, tmp_path / "copy")
+    assert _run_main(capsys, *args)[0] == 0
+    assert _run_main(capsys, *args[:3], "-o", tmp_path / "copy", "-q", "--mode", "dp")[0] == 0
     (out / "registration.png").write_bytes(b"my drawing over meshreg's")  # changed since meshreg wrote it
     code, err = _run_main(capsys, *args)
-    _one_line(err, 2, code, "registration.png exists and was not written by meshreg")
+    _one_line(err, 2, code, "registration.png is not on meshreg's list")
     assert (out / "registration.png").read_bytes() == b"my drawing over meshreg's"
     (tmp_path / "atlas").mkdir()
     (tmp_path / "atlas" / "template.ply").write_text("mine")
-    with pytest.raises(InputError, match="template.ply exists and was not written by meshreg"):
+    with pytest.raises(InputError, match="template.ply is not on meshreg's list"):
         atlas_files([grids / "a.npy", grids / "b.npy"], tmp_path / "atlas")
+    (tmp_path / "D.png").write_text("my figure")  # the matrix's figure: not named by the user
+    code, err = _run_main(capsys, "matrix", grids / "a.npy", grids / "b.npy", "-o", tmp_path / "D.npz", "-q")
+    _one_line(err, 2, code, "D.png is not on meshreg's list")
+    assert (tmp_path / "D.png").read_text() == "my figure"
+
+
+def test_a_run_stopped_between_writing_and_recording_leaves_a_usable_folder(tmp_path, grids, capsys, monkeypatch):
+    """The record is written before the outputs move in (staged), and a file is claimed before it is written
+    (atlas, demo inputs, view): a run killed in between leaves only files the next run takes as its own."""
+    out = tmp_path / "out"
+    args = ["register", grids / "a.npy", grids / "b.npy", "-o", out, "-q", "--mode", "dp"]
+    recorded_first = []
+
+    def record_then_check(folder, names, written=None):
+        recorded_first.append(not any((Path(folder) / name).exists() for name in names))
+        ownership.record(folder, names, written)
+
+    monkeypatch.setattr(files, "record", record_then_check)
+    assert _run_main(capsys, *args)[0] == 0 and recorded_first == [True]
+    monkeypatch.undo()
+    ownership.claim(out, ["view.html"])
+    (out / "view.html").write_text("half a page")  # a view run stopped while writing it
+    assert not ownership.not_ours(out, ["view.html"])
+    assert _run_main(capsys, *args)[0] == 0
+
+
+def test_two_runs_recording_at_once_keep_every_entry(tmp_path):
+    names = [[f"a{k}" for k in range(60)], [f"b{k}" for k in range(60)]]
+    for name in names[0] + names[1]:
+        (tmp_path / name).write_text(name)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        list(pool.map(_record_one_by_one, [tmp_path, tmp_path], names))
+    assert set(ownership.recorded(tmp_path)) == set(names[0] + names[1])
+
+
+def _record_one_by_one(folder, names):
+    for name in names:
+        ownership.record(folder, [name])
 
 
 # 7. every parameter is validated once, up front, naming its valid range
@@ -478,6 +525,7 @@ def test_all_failed_matrix_exits_1_and_writes_nothing(tmp_path, grids):
     out = tmp_path / "D.npz"
     out.write_bytes(b"an older matrix")
     out.with_suffix(".png").write_bytes(b"an older figure")
+    ownership.record(tmp_path, ["D.png"])  # written by an earlier run
     proc = _cli("matrix", grids / "a.npy", tmp_path / "closed.stl", "-o", out, "--plot", "-q")
     _one_line(proc.stderr, 1, proc.returncode, "1 of 1 pairs have no value")
     assert "skipped" in proc.stdout and "closed" in proc.stdout

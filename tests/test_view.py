@@ -51,7 +51,7 @@ def test_view_command_rewrites_the_page(registered):
     (registered / "view.html").write_text("my page")  # not meshreg's any more: kept
     view = [sys.executable, "-m", "meshreg.cli", "view", str(registered)]
     proc = subprocess.run(view, capture_output=True, text=True)
-    assert proc.returncode == 2 and "was not written by meshreg" in proc.stderr
+    assert proc.returncode == 2 and "is not on meshreg's list" in proc.stderr
     assert (registered / "view.html").read_text() == "my page"
     (registered / "view.html").write_bytes(page)
 
