@@ -37,8 +37,10 @@ TWIN_RESIDUAL_MARGIN = 0.05
 # had E <= 2.4e-5 and residuals <= 0.009
 SAME_SHAPE_ENERGY = 1e-3
 NORMALS_ONLY_RESIDUAL = 0.1
-# another candidate replaces a match of normals only when its residual is at most this fraction of it
-NORMALS_ONLY_GAIN = 0.5
+# candidates above this E after the basis descent are not refined to replace a match of normals only (the right
+# starts of the monkey saddles Re (u + iv)^3 and ^5 were at 0.0037 and 0.0135 before their refinement, 1.4e-8 and
+# 5.9e-8 after it)
+REFINE_BELOW = 100 * SAME_SHAPE_ENERGY
 
 
 def ranked_starts(first: GridSurface, second: GridSurface, options: Options, timings: dict):
@@ -100,22 +102,48 @@ def choose_unmirrored(candidates: list[Candidate], starts: list[Start], spare: l
 
 def normals_only(energy: float, residual: Residual) -> bool:
     """Whether a match fits the normals of one shape (E < SAME_SHAPE_ENERGY) but not its points (residual above
-    NORMALS_ONLY_RESIDUAL): E cannot see that it is wrong."""
+    NORMALS_ONLY_RESIDUAL): E cannot see that it is wrong.
+
+    Parameters
+    ----------
+    energy : float
+        E of the match.
+    residual : Residual
+        Its coordinate residual (:mod:`meshreg.residual`).
+    """
     return energy < SAME_SHAPE_ENERGY and residual.plus > NORMALS_ONLY_RESIDUAL
 
 
 def right_by_points(candidates: list[Candidate], chosen: int, residual: Residual) -> tuple[int, Residual]:
-    """The chosen candidate and its residual, unless it matches normals only (:func:`normals_only`): then every
-    other registered candidate is refined, and the one at the level of one shape, not mirrored, with the lowest
-    residual below NORMALS_ONLY_GAIN times the chosen one's replaces it (the chosen one when none does)."""
+    """The chosen candidate, or one that fits both normals and points when the chosen one fits the normals only.
+
+    When ``candidates[chosen]`` (refined, with ``residual``) matches normals only (:func:`normals_only`), every
+    other candidate below REFINE_BELOW is refined, and of those that fit the normals and the points (not normals
+    only, not mirrored) the one with the lowest residual replaces it; without one the chosen candidate stays.
+
+    Parameters
+    ----------
+    candidates : list of Candidate
+        The registered candidates (the others are refined here when needed).
+    chosen : int
+        Index of the chosen candidate, refined.
+    residual : Residual
+        Its residual.
+
+    Returns
+    -------
+    (int, Residual)
+        The index of the answer and its residual.
+    """
     if not normals_only(candidates[chosen].energy, residual):
         return chosen, residual
     best = (chosen, residual)
     for k, other in enumerate(candidates):
-        if k == chosen:
+        if k == chosen or other.energy > REFINE_BELOW:
             continue
         found = other.polish().residual()
-        if other.energy < SAME_SHAPE_ENERGY and not found.mirrored and found.plus < NORMALS_ONLY_GAIN * best[1].plus:
+        fits = other.energy < SAME_SHAPE_ENERGY and found.plus <= NORMALS_ONLY_RESIDUAL and not found.mirrored
+        if fits and found.plus < best[1].plus:
             best = (k, found)
     return best
 

@@ -11,7 +11,7 @@ import meshreg
 from meshreg.errors import InputError
 from meshreg.grid import GridSurface
 from meshreg.objective import Objective
-from meshreg.residual import coordinate_residual, node_weights
+from meshreg.residual import Residual, coordinate_residual, node_weights
 from meshreg.rotation import angle_between
 from meshreg.samples import SHEET_KINDS, sample, symmetric_sheet, warp
 from meshreg.search import SQUARE_SYMMETRIES, apply_symmetry, compose_symmetries, inverse_symmetry, symmetry_map
@@ -123,6 +123,35 @@ def test_a_match_of_normals_only_is_not_taken(k):
     assert np.abs(moved - exact).max() < 0.03 * size
     chosen = [s for s in result.params["starts"] if s["chosen"]]
     assert len(chosen) == 1 and chosen[0]["refined"]
+
+
+class _Stub:
+    """A candidate with a given E (after its refinement too) and residual; counts its refinements."""
+
+    def __init__(self, energy, plus):
+        self.energy, self.found, self.polished = energy, Residual(plus, 1.0), 0
+
+    def polish(self):
+        self.polished += 1
+        return self
+
+    def residual(self):
+        return self.found
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2, 3), (0, 3, 2, 1), (0, 2, 1, 3)])
+def test_a_match_of_normals_only_is_replaced_by_the_best_that_fits_the_points(order):
+    from meshreg.choice import right_by_points
+
+    pool = [_Stub(1e-8, 0.6), _Stub(1e-5, 0.09), _Stub(1e-6, 0.002), _Stub(5e-4, 0.25), _Stub(0.5, 0.001)]
+    candidates = [pool[k] for k in order] + [pool[4]]
+    chosen, residual = right_by_points(candidates, 0, pool[0].found)
+    assert candidates[chosen] is pool[2] and residual.plus == 0.002  # not the first to beat the chosen one
+    assert pool[4].polished == 0  # far above the level of one shape: not refined
+    lone = [_Stub(1e-8, 0.6), _Stub(9e-4, 0.25)]  # fits the normals only, too: no replacement
+    assert right_by_points(lone, 0, lone[0].found)[0] == 0
+    fine = [_Stub(1e-8, 0.004), _Stub(1e-9, 0.001)]  # the chosen one fits the points: nothing refined
+    assert right_by_points(fine, 0, fine[0].found)[0] == 0 and fine[1].polished == 0
 
 
 def test_pinning_an_alternative_reaches_it():
