@@ -233,33 +233,35 @@ def _checked_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     if f.min() < 0 or f.max() >= len(v):
         raise InputError("faces refer to vertices that do not exist")
     check_scale(v, "mesh vertex coordinates")
-    _check_precision(v, f)
     return v, f
 
 
 def _check_precision(v: np.ndarray, f: np.ndarray) -> None:
-    """InputError when the coordinates are float32 values (a float32 file) whose spacing at their distance from the
-    origin is more than FLOAT32_STEP of the median edge length: the shape has lost its digits."""
-    if v.size == 0 or len(f) == 0 or not np.array_equal(v, v.astype(np.float32)):
+    """InputError when the coordinates of a mesh with degenerate triangles are float32 values (a float32 file) whose
+    step at their distance from the origin is more than FLOAT32_STEP of the median edge length: the triangles
+    collapsed because the shape lost its digits. (Exact double data on a coarse lattice, a DEM on whole metres at
+    a northing of 8.5e6, has float32 values too, but no degenerate triangles.)"""
+    if not np.array_equal(v, v.astype(np.float32)):
         return
     offset = float(np.abs(v).max())
     step = float(np.spacing(np.float32(offset)))
     edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
     if step > FLOAT32_STEP * edge:
+        share = f"{step / edge:.0%} of the median edge length ({edge:.1e})" if edge > 0 else "and the edges collapsed"
         raise InputError(
-            f"the vertex coordinates are float32 values {offset:.1e} from the origin, where float32 steps by "
-            f"{step:.1e}, {step / max(edge, 1e-300):.0%} of the median edge length ({edge:.1e}): the shape has lost "
-            "its digits; save the mesh in double precision or moved to the origin"
+            f"the triangles collapsed: the vertex coordinates are float32 values {offset:.1e} from the origin, where "
+            f"float32 steps by {step:.1e}, {share}; save the mesh in double precision, or move it to the origin first"
         )
 
 
 def _drop_degenerate(v: np.ndarray, f: np.ndarray, cleanup: bool, report: list) -> np.ndarray:
     """Faces without the zero-area ones (or an error without ``cleanup``); an error when more than MAX_DROPPED of
-    them are (saying so when the mesh sits far from the origin: a float32 file's collapse)."""
+    them are, or when they come from a float32 file's collapse (:func:`_check_precision`)."""
     area = triangle_areas(v, f)
     bad = (area <= 1e-14 * max(area.max(), 1e-300)) | _repeated_corner(f)
     if not bad.any():
         return f
+    _check_precision(v, f)
     if bad.sum() > MAX_DROPPED * len(f):
         share = "all" if bad.all() else f"{int(bad.sum())} of the"
         raise InputError(f"{share} {len(f)} triangles of the mesh are degenerate (zero area){_collapse_hint(v, f)}")
