@@ -11,7 +11,8 @@ Outputs of an atlas in the directory ``out``:
 - ``modes.png``: the first three modes at -2, 0, +2 standard deviations; ``scores.png``: the members' scores and the
   explained variance.
 
-While it runs, ``out/.checkpoint/`` holds one JSON-lines file per stage; the same command resumes from it.
+They are written all together (none of them when the run fails), replacing those of an earlier atlas there. While it
+runs, ``out/.checkpoint/`` holds one JSON-lines file per stage; the same command resumes from it.
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ import numpy as np
 from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
-from .files import existing_file
+from .files import existing_file, remove_outputs, staged, write_atomic
 from .options import Options
-from .ownership import claim, foreign_message, not_ours, record
+from .ownership import claim, foreign_message, not_ours, record, recorded
 from .shape_atlas import atlas
 from .shape_stats import canonical_correlations
 
@@ -92,6 +93,19 @@ def write_atlas(result: Atlas, out) -> list[Path]:
     return files
 
 
+def _replace_outputs(result: Atlas, out: Path) -> list[Path]:
+    """The atlas's outputs written into ``out`` all together (:func:`meshreg.files.staged`), after removing those
+    of an earlier atlas there (the files meshreg recorded: a member left out this time leaves no aligned mesh behind).
+    Returns the files written."""
+    names = [TEMPLATE_FILE, *(f"{ALIGNED_DIR}/{_file_stem(name)}.ply" for name in result.names)]
+    names += [ATLAS_FILE, MODES_FILE, SCORES_FILE]
+    earlier = [name for name in recorded(out) if name in names or name.startswith(f"{ALIGNED_DIR}/")]
+    remove_outputs(out, earlier)
+    with staged(out, [ATLAS_FILE, *(n for n in names if n != ATLAS_FILE)]) as stage:
+        write_atlas(result, stage)
+    return [out / name for name in names]
+
+
 def _file_stem(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "member"
 
@@ -140,16 +154,13 @@ def atlas_files(
             checkpoint=checkpoint,
             progress=progress,
         )
-    except KeyboardInterrupt:
-        raise InputError(
-            f"interrupted: finished registrations are kept in {checkpoint}; rerun the same command to resume"
-        ) from None
+    except KeyboardInterrupt as err:
+        err.add_note(f"finished registrations are kept in {checkpoint}; rerun the same command to resume")
+        raise
     finally:
         if client is not None:
             client.close()
-    claim(out, [f.relative_to(out) for f in written])
-    written = WrittenAtlas(result, write_atlas(result, out))
-    record(out, [f.relative_to(out) for f in written.files])
+    written = WrittenAtlas(result, _replace_outputs(result, out))
     shutil.rmtree(checkpoint, ignore_errors=True)
     return written
 
@@ -256,4 +267,5 @@ def morph_files(first, second, out, *, mode: int | None = None, frames: int = 24
     shapes, faces = morph_frames(first, second, mode=mode, frames=frames, options=options)
     out.parent.mkdir(parents=True, exist_ok=True)
     title = f"mode {mode}: -2 to +2 sd" if mode else f"{Path(first).stem} to {Path(second).stem}"
-    return write_morph(shapes, faces, out, title=title)
+    # whole or not at all: matplotlib's writer saves the frames grabbed so far when it is interrupted
+    return write_atomic(out, lambda tmp: write_morph(shapes, faces, tmp, title=title))

@@ -156,10 +156,12 @@ def _client(scheduler: str):
 
 def _finished(out: Path, files: list[Path], options: Options) -> DistanceMatrix | None:
     """The matrix already at ``out`` when it is this run's, finished: the same files and parameters, every pair with
-    a value, and written after the last change of every input; else None."""
+    a value, and written after the last change of every input (its modification or its status change: a file moved
+    or copied into place with an older modification time, by ``mv``, ``cp -p`` or ``rsync -a``, was taken for the
+    one the matrix was computed from); else None."""
     import json
 
-    if not out.is_file() or any(f.stat().st_mtime > out.stat().st_mtime for f in files):
+    if not out.is_file() or any(max(f.stat().st_mtime, f.stat().st_ctime) > out.stat().st_mtime for f in files):
         return None
     try:
         done = DistanceMatrix.load(out)

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -205,6 +206,9 @@ def test_cli_writes_one_connectivity_reports_failures_and_morphs(tmp_path):
         text=True,
     )
     assert proc.returncode == 0, proc.stderr
+    rerun = [*cli, "atlas", *map(str, files[:2]), "-o", str(out), "--jobs", "1", *quick]
+    assert subprocess.run(rerun, capture_output=True, text=True).returncode == 0
+    assert sorted(p.stem for p in (out / "aligned").glob("*.ply")) == ["sheet0", "sheet1"]  # sheet2 was the last run's
     for bad in (
         [*cli, "atlas", str(files[0]), str(tmp_path / "closed.stl"), "-o", str(tmp_path / "x")],
         [*cli, "atlas", *map(str, files), "-o", str(tmp_path / "y"), "--tolerance", "-1"],
@@ -212,6 +216,49 @@ def test_cli_writes_one_connectivity_reports_failures_and_morphs(tmp_path):
     ):
         proc = subprocess.run(bad, capture_output=True, text=True)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+
+
+def test_a_face_lit_head_on_keeps_its_colour_in_range():
+    """The light is a unit vector: a face turned to it, at the brightest colour of the map, stays within 0-1 (an atlas
+    of four held-out members failed in matplotlib with the light 1.0034 long)."""
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure
+
+    from meshreg import viz
+
+    assert np.linalg.norm(viz.LIGHT) == pytest.approx(1.0, abs=1e-15)
+    x = np.linspace(0, 1, 2001)
+    brightest = x[colormaps["coolwarm"](x)[:, :3].max(axis=1).argmax()]
+    a = np.cross(viz.LIGHT, [1.0, 0, 0])
+    a /= np.linalg.norm(a)
+    face = np.array([[0.0, 0, 0], a, np.cross(viz.LIGHT, a)])
+    ax = Figure().add_subplot(projection="3d")
+    box = np.array([[-1.0, -1, -1], [1, 1, 1]])
+    viz._draw_surface(ax, face, np.array([[0, 1, 2]]), np.full(3, 2 * brightest - 1), 1.0, box)
+
+
+def test_an_interrupted_atlas_says_where_its_work_is_and_a_morph_is_whole_or_absent(tmp_path, monkeypatch):
+    from meshreg.atlas_outputs import atlas_files, morph_files
+
+    files = _write_grids(tmp_path, bump_sheets([(0.1, 0.4), (0.25, 0.6), (0.0, 0.5)]))
+
+    def interrupt(*_):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt) as stopped:  # the command line exits 130 / 143, not 2
+        atlas_files(files, tmp_path / "out", QUICK, progress=interrupt)
+    assert "rerun the same command to resume" in " ".join(stopped.value.__notes__)
+    gif = tmp_path / "m.gif"
+    gif.write_bytes(b"an earlier morph")
+
+    def cut_short(frames, faces, path, **_):
+        Path(path).write_bytes(b"GIF89a, three frames of 46")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("meshreg.viz.write_morph", cut_short)
+    with pytest.raises(KeyboardInterrupt):
+        morph_files(files[0], files[1], gif, frames=3, options=QUICK)
+    assert gif.read_bytes() == b"an earlier morph" and list(tmp_path.glob("*.gif")) == [gif]
 
 
 @pytest.mark.slow

@@ -1,6 +1,7 @@
 """Distance matrices: local serial, local pool and a real Dask cluster agree; runs resume; failures are reported."""
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -161,6 +162,12 @@ def test_a_finished_matrix_is_recognised_and_force_recomputes_it(tmp_path):
     assert forced.returncode == 0 and "already" not in forced.stdout and (tmp_path / "D.npz").stat().st_mtime_ns > stamp
     other = subprocess.run([*cmd, "--window", "5"], capture_output=True, text=True)  # other parameters: recomputed
     assert other.returncode == 0 and "already" not in other.stdout
+    older = tmp_path / "older.npy"  # another surface moved into place with an older modification time (mv, cp -p)
+    np.save(older, paper_pairs_small()[0].second.points)
+    os.utime(older, (0, 0))
+    os.replace(older, files[2])
+    moved = subprocess.run([*cmd, "--window", "5"], capture_output=True, text=True)
+    assert moved.returncode == 0 and "already" not in moved.stdout
 
 
 def paper_pairs_small():
