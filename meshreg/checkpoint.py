@@ -74,12 +74,12 @@ class Checkpoint:
         if not isinstance(header, dict) or set(header) != {"key"}:
             raise InputError(
                 f"{self.path} is not a meshreg checkpoint (line 1 is not its header): {start_over}, "
-                "or write the matrix elsewhere"
+                "or write the output elsewhere"
             )
         if header["key"] != self.key:
             raise InputError(
-                f"{self.path} is a checkpoint of a run with other parameters: rerun with those, {start_over}, "
-                "or write the matrix elsewhere"
+                f"{self.path} is a checkpoint of a run with other inputs or parameters: rerun with those, "
+                f"{start_over}, or write the output elsewhere"
             )
         for number, line in enumerate(lines[1:], start=2):
             record = _json_or_none(line)

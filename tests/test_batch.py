@@ -81,7 +81,7 @@ def test_checkpoint_of_another_run_is_refused_and_cut_lines_are_redone(tmp_path)
     seen = []
     again = distance_matrix(grids, jobs=1, checkpoint=path, progress=lambda done, total: seen.append(done))
     assert seen[0] == 2 and seen[-1] == 3 and not again.failures
-    with pytest.raises(InputError, match="other parameters"):
+    with pytest.raises(InputError, match="other inputs or parameters"):
         Checkpoint(path, key="something else")
 
 
