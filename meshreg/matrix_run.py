@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .batch import DistanceMatrix, distance_matrix
 from .checkpoint import CHECKPOINT_SUFFIX
 from .errors import InputError, RunError
@@ -176,11 +178,20 @@ def _finished(out: Path, files: list[Path], options: Options) -> DistanceMatrix 
 
 
 def _figure(result: DistanceMatrix, path: Path) -> Path:
-    """The heat map, dendrogram and MDS figure of a matrix, written atomically and recorded as meshreg's."""
+    """The heat map, dendrogram and MDS figure of a matrix, written atomically and recorded as meshreg's. A surface
+    without any value (unreadable, or every pair failed) is left out of it, and the title says so."""
     from .viz import classical_mds, plot_matrix
 
-    embedding = classical_mds(result.distance)
+    off = np.where(np.eye(len(result.names), dtype=bool), np.nan, result.distance)
+    kept = np.flatnonzero(np.isfinite(off).any(axis=1))
+    left = [Path(str(result.names[k])).stem for k in range(len(result.names)) if k not in set(kept)]
+    distance = result.distance[np.ix_(kept, kept)]
+    names = [result.names[k] for k in kept]
+    title = f"{len(names)} surfaces, {len(names) * (len(names) - 1) // 2} pairs" + (
+        f"; left out, without any value: {', '.join(left)}" if left else ""
+    )
+    embedding = classical_mds(distance)
     claim(path.parent, [path.name])
-    write_atomic(path, lambda tmp: plot_matrix(result.names, result.distance, embedding, tmp))
+    write_atomic(path, lambda tmp: plot_matrix(names, distance, embedding, tmp, title=title))
     record(path.parent, [path.name])
     return path

@@ -113,7 +113,10 @@ def register_files(
     options.check_grids(grids[0].shape, grids[1].shape)
     if symmetric:
         options.check_grids(grids[1].shape, grids[0].shape)
-    return write_grid_registration(grids[0], grids[1], prepare_output(out, paths), options, symmetric, callback)
+    written = write_grid_registration(grids[0], grids[1], prepare_output(out, paths), options, symmetric, callback)
+    if html:
+        written.notes.append("--html draws meshes: grids get no view.html")
+    return written
 
 
 def write_grid_registration(

@@ -224,7 +224,7 @@ def test_failed_pairs_are_retried_on_resume_unless_asked_not_to(tmp_path, finish
 # 3. an unreadable item is reported and skipped; the rest goes on
 
 
-def test_unreadable_items_are_skipped_and_the_rest_is_computed(tmp_path):
+def test_unreadable_items_are_skipped_and_the_rest_is_computed(tmp_path, monkeypatch):
     files = _collection(tmp_path)[:2]
     (tmp_path / "cut.npz").write_bytes(b"PK\x03\x04" + b"\0" * 20)  # a truncated .npz
     with open(tmp_path / "huge.npy", "wb") as stream:  # a header claiming 3e10 values
@@ -239,6 +239,17 @@ def test_unreadable_items_are_skipped_and_the_rest_is_computed(tmp_path):
     assert np.isfinite(d.distance[0, 1]) and set(d.skipped) == {2, 3, 4}
     assert "BadZipFile" in d.skipped[2] and "100000 x 100000 x 3 array" in d.skipped[3]
     assert "degenerate" in d.skipped[4] and len(d.failures) == 9
+    drawn = {}
+
+    def plot(names, distance, embedding, path, title=""):
+        drawn.update(names=names, title=title)
+        Path(path).write_bytes(b"png")
+
+    monkeypatch.setattr("meshreg.viz.plot_matrix", plot)
+    from meshreg.matrix_run import _figure
+
+    _figure(d, tmp_path / "D.png")  # the skipped surfaces are not drawn as points at the largest distance
+    assert drawn["names"] == d.names[:2] and drawn["title"].endswith("without any value: cut, huge, flat")
 
 
 # 4. meshes without usable triangles are refused with one line
