@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 import meshreg
 from meshreg.rotation import angle_between
+from meshreg.search import symmetry_map
 
 
 def _sheet(r, t, z):
@@ -75,27 +76,27 @@ WARPS = {
         t + 0.10 * np.sin(np.pi * t) * np.sin(2 * np.pi * r),
     ),
 }
-# each symmetry of the square as (swap r and t, then reverse r, reverse t)
+# the symmetries of the square by name: their index k in meshreg.search.SQUARE_SYMMETRIES (reverse r and / or t,
+# then swap them: meshreg.search.symmetry_map)
 SYMMETRIES = {
-    "e": (0, 0, 0),
-    "swap": (1, 0, 0),
-    "flip-r": (0, 1, 0),
-    "flip-t": (0, 0, 1),
-    "half-turn": (0, 1, 1),
-    "swap-flip-r": (1, 1, 0),
-    "swap-flip-t": (1, 0, 1),
-    "swap-both": (1, 1, 1),
+    "e": 0,
+    "flip-t": 1,
+    "flip-r": 2,
+    "half-turn": 3,
+    "swap": 4,
+    "flip-t-swap": 5,
+    "flip-r-swap": 6,
+    "anti-diagonal": 7,
 }
-CASES = ["power e", "interior swap", "interior half-turn", "interior swap-flip-t"]
+CASES = ["power e", "interior swap", "interior half-turn", "interior flip-t-swap"]
 
 
 def reparametrization(warp: str, symmetry: str):
     """gamma (r, t) -> (r', t'): the symmetry of the square, then the warp."""
-    swap, flip_r, flip_t = SYMMETRIES[symmetry]
 
     def gamma(r, t):
-        r, t = (t, r) if swap else (r, t)
-        return WARPS[warp](1 - r if flip_r else r, 1 - t if flip_t else t)
+        moved = symmetry_map(SYMMETRIES[symmetry], np.stack([r, t], axis=-1))
+        return WARPS[warp](moved[..., 0], moved[..., 1])
 
     return gamma
 
