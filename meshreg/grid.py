@@ -346,7 +346,13 @@ def _read_text(path: Path, shape: tuple[int, int] | None) -> GridSurface:
     if lines and len(lines[0]) == 2:
         header = _grid_size(lines[0], "the first line 'M N'")
         lines = lines[1:]
-        shape = shape or header
+        if shape is not None and tuple(shape) != header:
+            given = f"{shape[0]}x{shape[1]}"
+            raise InputError(
+                f"the file says its grid is {header[0]}x{header[1]} (first line) but --grid gives {given}: --grid is "
+                "for text files without that line; drop it"
+            )
+        shape = header
     if shape is None:
         raise InputError("grid size unknown: give --grid M N or start the file with a line 'M N'")
     if any(len(ln) != 3 for ln in lines):

@@ -49,7 +49,10 @@ def as_input(surface, name: str | None = None) -> GridSurface | Mesh:
     if isinstance(surface, tuple) and len(surface) == 2:  # a nested list is grid data, a pair of arrays a mesh
         return _mesh(np.asarray(surface[0]), np.asarray(surface[1]), name or "(vertices, faces)")
     if isinstance(surface, np.ndarray) or (isinstance(surface, (tuple, list)) and len(surface)):
-        return GridSurface.from_array(surface)
+        try:
+            return GridSurface.from_array(surface)
+        except InputError as err:
+            raise (InputError(f"{name}: {err}") if name else err) from None
     raise InputError(
         f"cannot register a {type(surface).__name__}: give a grid (GridSurface, (M, N, 3) array, grid file), "
         "a mesh (file, trimesh.Trimesh, open3d TriangleMesh) or a (vertices, faces) pair"

@@ -663,6 +663,11 @@ def test_messages_for_unknown_suffix_folder_and_grid_size(tmp_path, grids, capsy
     code, err = _run_main(capsys, "register", tmp_path / "g.txt", grids / "b.npy", "-o", tmp_path / "o", "-q")
     _one_line(err, 2, code, "the first line 'M N' must be two integers >= 3")
     assert err.count("g.txt") == 1 and not (tmp_path / "o").exists()
+    (tmp_path / "h.txt").write_text("3 5\n" + "0 0 0\n" * 15)  # --grid would reshape it: 5 x 3 is not its grid
+    code, err = _run_main(capsys, "register", tmp_path / "h.txt", grids / "b.npy", "--grid", "5", "3", "-o", "o", "-q")
+    _one_line(err, 2, code, "the file says its grid is 3x5 (first line) but --grid gives 5x3")
+    with pytest.raises(InputError, match="^second: grid points contain 5 NaN"):  # which surface
+        meshreg.register(sample(sine(2), 5, 5).points, np.where(np.eye(5)[..., None] * [1, 0, 0], np.nan, 1.0))
 
 
 # 13. adapters: MeshLab prepare keeps a clean disk's boundary and leaves the MeshSet as it was; Open3D types
