@@ -260,9 +260,7 @@ def _dp_then_descent(
         rotation, h, _ = dp_stage(drive.work, options, both=both, rotation=rotation)
         log.step("dp", 0, energy_dp := drive.full_energy(rotation, h))
     start = valid_start(drive.work, h, options.advanced.max_stretch)
-    rotation, h = drive.descend(rotation, start, [options.basis], log)
-    # no step fit the stretch bound: should this start be refined, it first descends with stretch masks
-    drive.stuck = options.solver != "gradient" and options.advanced.stuck_stretch_masks > 0 and np.array_equal(h, start)
+    rotation, h = drive.descend_from_start(rotation, start, log)
     energy, measured = drive.work.evaluate(rotation, h)
     return Candidate(objective, rotation, h, energy, log, energy_dp=energy_dp, pending=drive, measured=measured)
 

@@ -304,6 +304,15 @@ class Descent:
         with log.clock("gd"):
             return self._bases(self.work, rotation, h, bases, self._log(self.work, log))
 
+    def descend_from_start(self, rotation, start: np.ndarray, log: Log):
+        """:meth:`descend` in KL = ``options.basis`` from a DP answer ``start``; when no step was accepted (none fit
+        the stretch bound) the descent is marked stuck, so that :meth:`polish` first runs :meth:`unstick` (with
+        Gauss-Newton and ``Advanced.stuck_stretch_masks`` > 0). Returns R and h on the work grid."""
+        rotation, h = self.descend(rotation, start, [self.options.basis], log)
+        masks = self.options.advanced.stuck_stretch_masks
+        self.stuck = self.options.solver != "gradient" and masks > 0 and np.array_equal(h, start)
+        return rotation, h
+
     def polish(self, rotation, h, log: Log):
         """The refinement levels from (R, h) on the work grid; returns R and h at the full grid's nodes."""
         if self.stuck:
