@@ -28,7 +28,7 @@ from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
 from .files import existing_file, remove_outputs, staged, write_atomic
 from .options import Options
-from .ownership import claim, foreign_message, not_ours, record, recorded
+from .ownership import recorded, refuse_foreign, writing
 from .shape_atlas import atlas
 from .shape_stats import canonical_correlations
 
@@ -137,9 +137,7 @@ def atlas_files(
     clash = {f.resolve() for f in files} & {f.resolve() for f in written}
     if clash:
         raise InputError(f"{sorted(clash)[0]} is an input file: write the atlas to another directory")
-    foreign = not_ours(out, [f.relative_to(out) for f in written])
-    if foreign:
-        raise InputError(foreign_message(out, foreign[0]))
+    refuse_foreign(out, [f.relative_to(out) for f in written])
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / CHECKPOINT_DIR
     client = _client(scheduler) if scheduler else None
@@ -176,25 +174,22 @@ def atlas_demo(out, *, count: int = 12, jobs: int | None = None, progress=None) 
     out = Path(out)
     inputs = out / "inputs"
     made = [f"inputs/terrain_{k:02d}.ply" for k in range(count)] + ["inputs/parameters.csv"]
-    foreign = not_ours(out, made)
-    if foreign:
-        raise InputError(foreign_message(out, foreign[0]))
+    refuse_foreign(out, made)
     inputs.mkdir(parents=True, exist_ok=True)
-    claim(out, made)
     meshes, params = terrain_family(count)
     files = []
-    for k, (v, f) in enumerate(meshes):
-        files.append(inputs / f"terrain_{k:02d}.ply")
-        write_ply(files[-1], v, f, np.full((len(v), 3), 0.8))
-    np.savetxt(
-        inputs / "parameters.csv",
-        np.c_[np.arange(count), params],
-        fmt=["%d", "%.6f", "%.6f"],
-        delimiter=",",
-        header="member,relief,uplift",
-        comments="",
-    )
-    record(out, made)
+    with writing(out, made):
+        for k, (v, f) in enumerate(meshes):
+            files.append(inputs / f"terrain_{k:02d}.ply")
+            write_ply(files[-1], v, f, np.full((len(v), 3), 0.8))
+        np.savetxt(
+            inputs / "parameters.csv",
+            np.c_[np.arange(count), params],
+            fmt=["%d", "%.6f", "%.6f"],
+            delimiter=",",
+            header="member,relief,uplift",
+            comments="",
+        )
     written = atlas_files(files, out, jobs=jobs, progress=progress)
     kept = [int(name.split("_")[-1]) for name in written.atlas.names]
     written.known = params[kept]

@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import InputError, RunError
-from .ownership import foreign_message, forget, not_ours, record
+from .ownership import forget, record, refuse_foreign
 
 GRID_SUFFIXES = (".npy", ".npz", ".txt", ".dat")  # .txt and .dat: the paper's text format
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -83,9 +83,8 @@ def output_dir(path, names, inputs=(), own_only: bool = True) -> Path:
         for parent in target.relative_to(out).parents:
             if (out / parent).exists() and not (out / parent).is_dir():
                 raise InputError(f"{out / parent} is a file where an output directory goes: move it or give another -o")
-    foreign = not_ours(out, names) if own_only else []
-    if foreign:
-        raise InputError(foreign_message(out, foreign[0]))
+    if own_only:
+        refuse_foreign(out, names)
     try:
         probe = tempfile.NamedTemporaryFile(dir=out, prefix=".meshreg-probe-")
     except OSError as err:

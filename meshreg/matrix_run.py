@@ -14,7 +14,7 @@ from .errors import InputError, RunError
 from .files import output_dir, remove_outputs, surface_kind, write_atomic
 from .limits import check_jobs
 from .options import Options, check_scheduler
-from .ownership import claim, foreign_message, not_ours, record
+from .ownership import refuse_foreign, writing
 
 
 @dataclass
@@ -70,8 +70,7 @@ def check_matrix(files, out, options: Options, *, jobs: int | None = None, sched
         raise InputError(f"{out}: the matrix file must end in .npz")
     figure = out.with_suffix(".png").name
     output_dir(out.parent, [out.name, out.name + CHECKPOINT_SUFFIX, figure], files, False)
-    if not_ours(out.parent, [figure]):  # the matrix file is named by the user; its figure is not
-        raise InputError(foreign_message(out.parent, figure))
+    refuse_foreign(out.parent, [figure])  # the matrix file is named by the user; its figure is not
     if scheduler is not None:
         check_scheduler(scheduler)
         return None
@@ -163,7 +162,10 @@ def _finished(out: Path, files: list[Path], options: Options) -> DistanceMatrix 
     one the matrix was computed from); else None."""
     import json
 
-    if not out.is_file() or any(max(f.stat().st_mtime, f.stat().st_ctime) > out.stat().st_mtime for f in files):
+    if not out.is_file():
+        return None
+    written = out.stat().st_mtime
+    if any(max(stat.st_mtime, stat.st_ctime) > written for stat in (f.stat() for f in files)):
         return None
     try:
         done = DistanceMatrix.load(out)
@@ -183,15 +185,15 @@ def _figure(result: DistanceMatrix, path: Path) -> Path:
     from .viz import classical_mds, plot_matrix
 
     off = np.where(np.eye(len(result.names), dtype=bool), np.nan, result.distance)
-    kept = np.flatnonzero(np.isfinite(off).any(axis=1))
-    left = [Path(str(result.names[k])).stem for k in range(len(result.names)) if k not in set(kept)]
+    valued = np.isfinite(off).any(axis=1)
+    kept = np.flatnonzero(valued)
+    left = [Path(str(name)).stem for name, has in zip(result.names, valued, strict=True) if not has]
     distance = result.distance[np.ix_(kept, kept)]
     names = [result.names[k] for k in kept]
     title = f"{len(names)} surfaces, {len(names) * (len(names) - 1) // 2} pairs" + (
         f"; left out, without any value: {', '.join(left)}" if left else ""
     )
     embedding = classical_mds(distance)
-    claim(path.parent, [path.name])
-    write_atomic(path, lambda tmp: plot_matrix(names, distance, embedding, tmp, title=title))
-    record(path.parent, [path.name])
+    with writing(path.parent, [path.name]):
+        write_atomic(path, lambda tmp: plot_matrix(names, distance, embedding, tmp, title=title))
     return path

@@ -26,7 +26,7 @@ import numpy as np
 from .errors import InputError
 from .files import output_dir, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
-from .ownership import claim, foreign_message, not_ours, record
+from .ownership import refuse_foreign, writing
 from .painter import Painter
 from .result import Registration
 from .schedule import Progress
@@ -262,9 +262,8 @@ def run_demo(out, options: Options | None = None, callback: Progress | None = No
 
     out = prepare_output(out, [], OUTPUT_FILES + DEMO_INPUTS)
     pair = (v1, f1, p1), (v2, f2, p2) = demo_pair()
-    claim(out, DEMO_INPUTS)
-    inputs = write_demo_meshes(out / "inputs", pair)[0].parent
-    record(out, DEMO_INPUTS)
+    with writing(out, DEMO_INPUTS):
+        inputs = write_demo_meshes(out / "inputs", pair)[0].parent
     meshes = Mesh(v1, f1, "terrain_a"), Mesh(v2, f2, "terrain_b")
     written = write_mesh_registration(*meshes, out, options or Options(), callback, html)
     result = written.result
@@ -293,8 +292,7 @@ def view_outputs(out) -> Path:
     missing = [str(p) for p in names if not p.is_file()]
     if missing:
         raise InputError(f"{out} holds no mesh registration (missing {', '.join(missing)}): run meshreg register first")
-    if not_ours(out, [VIEW_FILE]):
-        raise InputError(foreign_message(out, VIEW_FILE, "move or delete it first"))
+    refuse_foreign(out, [VIEW_FILE], "move or delete it first")
     meshes = [trimesh.load(p, process=False, maintain_order=True) for p in names[:2]]
     with np.load(names[2], allow_pickle=False) as data:
         if "matched_first" not in data:
@@ -303,9 +301,7 @@ def view_outputs(out) -> Path:
         transform, energy = data["transform"], float(data["energy"])
     first, second = ((m.vertices, m.faces, m.visual.vertex_colors[:, :3] / 255.0) for m in meshes)
     title = f"E = {energy:.3g}: hover a point to see its match"
-    claim(out, [VIEW_FILE])
-    path = write_atomic(
-        out / VIEW_FILE, lambda tmp: write_view(tmp, first, second, matches, np.linalg.inv(transform), title=title)
-    )
-    record(out, [VIEW_FILE])
-    return path
+    with writing(out, [VIEW_FILE]):
+        return write_atomic(
+            out / VIEW_FILE, lambda tmp: write_view(tmp, first, second, matches, np.linalg.inv(transform), title=title)
+        )

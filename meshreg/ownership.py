@@ -17,6 +17,8 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from .errors import InputError
+
 RECORD_FILE = ".meshreg-outputs"
 PENDING = "pending"  # the entry of a file being written: meshreg's even if the run stopped before recording it
 HASH_BYTES = 16  # blake2b digest size of a recorded file's content
@@ -123,6 +125,24 @@ def not_ours(out: str | Path, names: Iterable) -> list[str]:
         if not ours:
             foreign.append(str(name))
     return foreign
+
+
+def refuse_foreign(out: str | Path, names: Iterable, what_to_do: str = "move or delete it, or give another -o") -> None:
+    """InputError (:func:`foreign_message`) when one of ``names`` (relative to ``out``) exists there as a file meshreg
+    did not write (:func:`not_ours`)."""
+    foreign = not_ours(out, names)
+    if foreign:
+        raise InputError(foreign_message(out, foreign[0], what_to_do))
+
+
+@contextmanager
+def writing(out: str | Path, names: Iterable) -> Iterator[None]:
+    """Claim the files ``names`` (relative to ``out``) before the block writes them in place, and record them after:
+    a run stopped in between leaves files the next run takes as its own."""
+    names = list(names)
+    claim(out, names)
+    yield
+    record(out, names)
 
 
 def foreign_message(out: str | Path, name: str, what_to_do: str = "move or delete it, or give another -o") -> str:

@@ -72,13 +72,13 @@ def similarity(rotation: np.ndarray, source: np.ndarray, target: np.ndarray) -> 
     """The similarity x -> s R x + b (4 x 4) with R = ``rotation`` fixed and s, b the least-squares fit of the
     points ``source`` (..., 3) onto their counterparts ``target`` (..., 3)."""
     p, q = np.asarray(source, dtype=float).reshape(-1, 3), np.asarray(target, dtype=float).reshape(-1, 3)
-    rp = (p - p.mean(axis=0)) @ rotation.T
-    scale = float(np.sum(rp * (q - q.mean(axis=0))) / np.sum(rp * rp))
+    pc, qc = p - p.mean(axis=0), q - q.mean(axis=0)
+    rp = pc @ rotation.T
+    scale = float(np.sum(rp * qc) / np.sum(rp * rp))
     if not scale > 0:  # R does not fit the points (a bent pair): a negative s would make the transform a reflection
-        centred = q - q.mean(axis=0)
-        rotation = kabsch((p - p.mean(axis=0)).T @ centred)
-        rp = (p - p.mean(axis=0)) @ rotation.T
-        scale = float(np.sum(rp * centred) / np.sum(rp * rp))
+        rotation = kabsch(pc.T @ qc)
+        rp = pc @ rotation.T
+        scale = float(np.sum(rp * qc) / np.sum(rp * rp))
     out = np.eye(4)
     out[:3, :3] = scale * rotation
     out[:3, 3] = q.mean(axis=0) - scale * rotation @ p.mean(axis=0)

@@ -310,7 +310,7 @@ class Descent:
         Gauss-Newton and ``Advanced.stuck_stretch_masks`` > 0). Returns R and h on the work grid."""
         rotation, h = self.descend(rotation, start, [self.options.basis], log)
         masks = self.options.advanced.stuck_stretch_masks
-        self.stuck = self.options.solver != "gradient" and masks > 0 and np.array_equal(h, start)
+        self.stuck = self.solver is gauss_newton and masks > 0 and np.array_equal(h, start)
         return rotation, h
 
     def polish(self, rotation, h, log: Log):
