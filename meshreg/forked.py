@@ -22,13 +22,15 @@ from typing import Any
 
 def may_fork() -> bool:
     """Whether forking a worker is safe and useful here: Linux, more than one core, not inside a daemonic process
-    (a pool worker may not have children) and no other Python thread running (a fork copies locks other threads
-    may hold, e.g. in a Dask client or a GUI)."""
+    (a pool worker may not have children), no other Python thread running (a fork copies locks other threads
+    may hold, e.g. in a Dask client or a GUI), and SIGCHLD not ignored (the kernel then reaps children itself, so a
+    child's end cannot be waited for: multiprocessing would take it for still running)."""
     return (
         sys.platform.startswith("linux")
         and (os.cpu_count() or 1) > 1
         and not multiprocessing.current_process().daemon
         and threading.active_count() == 1
+        and signal.getsignal(signal.SIGCHLD) != signal.SIG_IGN
     )
 
 

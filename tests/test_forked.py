@@ -34,6 +34,19 @@ def test_forked_answer_comes_from_a_child_and_equals_the_serial_one(monkeypatch)
     assert (pid, value) == (os.getpid(), 49)
 
 
+def test_no_child_is_forked_where_sigchld_is_ignored(monkeypatch):
+    # the kernel reaps such children itself: closing one raised "Cannot close a process while it is still running"
+    monkeypatch.setattr(meshreg.forked, "idle_core", lambda *args, **kwargs: True)
+    previous = signal.signal(signal.SIGCHLD, signal.SIG_IGN)
+    try:
+        with Forked(_pid_and_square, 5, fork=True) as job:
+            started = job.forked
+            pid, value = job.result()
+    finally:
+        signal.signal(signal.SIGCHLD, previous)
+    assert (started, pid, value) == (False, os.getpid(), 25)
+
+
 def test_an_error_in_the_child_is_met_again_in_the_caller():
     with Forked(_refuse, 3) as job, pytest.raises(InputError, match="no 3"):
         job.result()
