@@ -2,6 +2,7 @@
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_heldout.py [--grid 41] [--surfaces monkey flat ...]
         [--cases "interior swap" ...] [--seed 500]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_heldout.py --random 120 [--first 0] [--grid 41]
 
 Each surface c over [0, 1]^2 (none of them in :mod:`meshreg.samples`) is registered against
 ``2.3 P c(gamma(r, t)) + b``: P a random rotation, gamma a warp of the square after one of its 8 symmetries. The
@@ -11,6 +12,10 @@ surface evaluated exactly at the points h matches, as a fraction of the second s
 bounding-box side). A rotation error of 180 degrees can be right: some surfaces have a rigid symmetry. Prints one
 row per case (surface, warp, symmetry, E, rotation error in degrees, point-wise mean and max, seconds) and the
 cases whose mean point-wise error is above ``--tolerance``.
+
+With ``--random N`` the surfaces, warps, symmetries, rotations and scales are drawn at random instead (case i from
+seed 1000 + i: sums of 2-4 products of sines, relief 0.05, 0.15 or 0.3, flat or rolled, aspect 0.6-2; warps of
+powers 0.7-1.4 and sines of amplitude up to 0.1), one row per case and the count of wrong ones.
 """
 
 from __future__ import annotations
@@ -135,6 +140,76 @@ def run_case(name: str, warp: str, symmetry: str, n: int, seed: int) -> dict:
     }
 
 
+def random_case(i: int):
+    """Case ``i`` of ``--random``: (surface, gamma, symmetry index, rotation, scale, description)."""
+    rng = np.random.default_rng(1000 + i)
+    count = int(rng.integers(2, 5))
+    freq, phase, weight = (
+        rng.uniform(0.5, 3.0, (count, 2)),
+        rng.uniform(0, 2 * np.pi, (count, 2)),
+        rng.normal(0, 1, count),
+    )
+    relief, curl, aspect = (
+        rng.choice([0.05, 0.15, 0.3]),
+        rng.choice([0.0, 0.0, 1.0, 2.0]),
+        rng.choice([1.0, 1.0, 2.0, 0.6]),
+    )
+
+    def surface(r, t):
+        terms = zip(weight, freq, phase, strict=True)
+        z = sum(w * np.sin(np.pi * f[0] * r + p[0]) * np.cos(np.pi * f[1] * t + p[1]) for w, f, p in terms)
+        z = relief * z / np.abs(weight).sum()
+        if not curl:
+            return _sheet(aspect * r, t, z)
+        angle = curl * (t - 0.5)  # rolled about the first axis, radius 1 / curl
+        return np.stack([aspect * r, np.sin(angle) / curl, (1 - np.cos(angle)) / curl + z], -1)
+
+    a, b = rng.uniform(-0.1, 0.1, 2)
+    m, n = rng.integers(1, 3, 2)
+    powers = rng.uniform(0.7, 1.4, 2)
+
+    def warp(r, t):
+        r, t = r ** powers[0], t ** powers[1]
+        return r + a * np.sin(np.pi * r) * np.cos(m * np.pi * t), t + b * np.sin(np.pi * t) * np.sin(n * np.pi * r)
+
+    symmetry = int(rng.integers(8))
+
+    def gamma(r, t):
+        moved = symmetry_map(symmetry, np.stack([r, t], axis=-1))
+        return warp(moved[..., 0], moved[..., 1])
+
+    rotation, scale = Rotation.random(random_state=i).as_matrix(), float(rng.uniform(0.3, 3))
+    text = f"relief {relief} curl {curl} aspect {aspect} terms {count} warp ({a:.3f}, {b:.3f}, {powers.round(2)})"
+    return surface, gamma, symmetry, rotation, scale, text
+
+
+def run_random(first: int, count: int, n: int, tolerance: float) -> None:
+    """``--random``: cases ``first`` to ``first + count - 1`` of :func:`random_case` registered and judged."""
+    print("| case | symmetry | E | rotation error deg | point-wise mean | point-wise max | s | surface and warp |")
+    print("|---|---|---|---|---|---|---|---|")
+    r, t = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    wrong = []
+    for i in range(first, first + count):
+        surface, gamma, symmetry, rotation, scale, text = random_case(i)
+
+        def second(u, v, surface=surface, gamma=gamma, rotation=rotation, scale=scale):
+            return scale * surface(*gamma(u, v)) @ rotation.T + [1.0, 2.0, 3.0]
+
+        tic = time.perf_counter()
+        result = meshreg.register(surface(r, t), second(r, t))
+        seconds = time.perf_counter() - tic
+        error = pointwise_error(result, surface(r, t), second, float(np.ptp(second(r, t).reshape(-1, 3), axis=0).max()))
+        angle = angle_between(result.rotation, rotation)
+        print(
+            f"| {i} | {symmetry} | {result.energy:.2g} | {angle:.3g} | {error.mean():.2g} | {error.max():.2g} | "
+            f"{seconds:.2f} | {text} |",
+            flush=True,
+        )
+        if error.mean() > tolerance:
+            wrong.append(str(i))
+    print(f"wrong point by point (mean above {tolerance}): {len(wrong)} of {count}: {', '.join(wrong) or 'none'}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--grid", type=int, default=41, help="nodes per side (default 41)")
@@ -142,8 +217,13 @@ def main():
     parser.add_argument("--cases", nargs="+", default=CASES, help='"warp symmetry" pairs (default: %(default)s)')
     parser.add_argument("--seed", type=int, default=500, help="seed of the random rotation")
     parser.add_argument("--tolerance", type=float, default=0.01, help="mean point-wise error counted as wrong")
+    parser.add_argument("--random", type=int, default=0, help="this many random cases instead of the surfaces")
+    parser.add_argument("--first", type=int, default=0, help="the first random case")
     args = parser.parse_args()
     print(f"grid {args.grid} x {args.grid}, seed {args.seed}, meshreg {meshreg.__version__}")
+    if args.random:
+        run_random(args.first, args.random, args.grid, args.tolerance)
+        return
     print("| surface | warp | symmetry | E | rotation error deg | point-wise mean | point-wise max | s |")
     print("|---|---|---|---|---|---|---|---|")
     wrong = []
