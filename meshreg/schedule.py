@@ -145,12 +145,12 @@ def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
     The DP starts from ``rotation``, or from Kabsch at the identity when it is None. Returns R, h, E.
     """
     rounds, radius = options.advanced.dp_rounds, options.advanced.dp_radius
-    rotation, h, energy = _dp_along(objective, rotation, None, options.window, rounds, along_t=False)
+    rotation, h, energy = dp_pass(objective, rotation, None, options.window, rounds, along_t=False)
     if both:
         for p in range(2 * rounds):
             # after the first pass each way, h is aligned: later passes search near the identity path
             near = radius if p >= 1 else 0
-            new_rotation, new_h, new_energy = _dp_along(
+            new_rotation, new_h, new_energy = dp_pass(
                 objective, rotation, h, options.window, rounds, p % 2 == 0, near
             )
             # composing the two directions' steps can collapse cells, or stretch them beyond the descent's bound
@@ -164,7 +164,7 @@ def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
     return rotation, h, energy
 
 
-def _dp_along(objective: Objective, rotation, h, window: int, dp_rounds: int, along_t: bool, radius: int = 0):
+def dp_pass(objective: Objective, rotation, h, window: int, dp_rounds: int, along_t: bool, radius: int = 0):
     """One DP-surface-min pass on (q1, (q2, h)) along r or t; returns R, h o (gamma step), E.
 
     With ``radius`` > 0 (and a grid small enough for the full table), the DP searches only within ``radius`` nodes
