@@ -178,7 +178,8 @@ def prepare_disk(
         f = aliases[f]
         f = f[~_repeated_corner(f)]
         welded = int(np.sum(aliases != np.arange(len(v))))
-        report.append(f"welded {welded} coincident vertices (the mesh came in {pieces} pieces)")
+        how = f"the mesh came in {pieces} pieces" if pieces > 1 else "a seam cut into the surface"
+        report.append(f"welded {welded} coincident vertices ({how})")
     edges = _edges(f)  # recomputed only when a step changes the faces
     f, edges = _unchanged_or_new(_consistent_orientation(f, cleanup, report, edges), f, edges)
     f, edges = _unchanged_or_new(_unpinched(f, cleanup, report, edges), f, edges)
@@ -392,16 +393,39 @@ def _single_loop(v: np.ndarray, f: np.ndarray, edges: tuple) -> list:
 
 def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
     """For a mesh in several pieces held together only by coincident vertices (a triangle soup, seams of an
-    exporter): each vertex's representative (the first vertex at its position) and the number of pieces, else
-    (None, pieces). A mesh that is one piece is never welded: its coincident vertices may be a deliberate cut."""
+    exporter): each vertex's representative (the first vertex at its position) and the number of pieces. A mesh in
+    one piece gets its coincident boundary vertices welded only when that leaves a disk (:func:`_seam_aliases`).
+    Else (None, pieces)."""
     pieces = face_components(f, len(v))[1]
     if pieces < 2:
-        return None, pieces
+        return _seam_aliases(v, f), pieces
     _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
     aliases = first[inverse.ravel()]
     if np.all(aliases == np.arange(len(v))) or face_components(aliases[f], len(v))[1] >= pieces:
         return None, pieces
     return aliases, pieces
+
+
+def _seam_aliases(v, f) -> np.ndarray | None:
+    """Representatives of a one-piece mesh's coincident boundary vertices when welding them closes a slit and the
+    mesh stays a disk (an exporter's seam cut into the surface from its rim: welded, the rim is one loop again, Euler
+    characteristic 1); None otherwise, so that a deliberate cut is kept (a cylinder cut open would become an annulus,
+    a sphere cut open a closed surface)."""
+    if len(f) == 0:
+        return None
+    rim = np.unique(boundary_edges(f))
+    _, first, inverse = np.unique(v[rim], axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(rim):
+        return None
+    aliases = np.arange(len(v))
+    aliases[rim] = rim[first[inverse.ravel()]]
+    welded = aliases[f]
+    welded = welded[~_repeated_corner(welded)]
+    counts = edge_table(welded)[3]
+    if len(welded) < len(f) or np.any(counts > 2) or len(boundary_sizes(welded)) != 1:
+        return None
+    euler = len(np.unique(welded)) - len(counts) + len(welded)
+    return aliases if euler == 1 else None
 
 
 def _fill_holes(v, f, loops):
