@@ -268,12 +268,17 @@ def clip(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray) -> Clipped
 
 
 def area_fraction(disk: DiskMesh, values: np.ndarray) -> float:
-    """Fraction of a disk's area (its triangles as given: hole-filling fans left out) where ``values`` >= 0."""
+    """Fraction of a disk's area (its triangles as given: hole-filling fans left out) where ``values`` >= 0.
+    Triangles whose corners are all at 0 (within SNAP edge lengths of the other's rim, :func:`snapped`) count as
+    inside: on a mesh whose triangles near the rim are much smaller than its median edge (long thin triangles,
+    a fine band along the rim), whole rows of them lie in that band although the meshes cover the same region."""
     original = np.all(disk.faces < len(disk.vertex_map), axis=1)
-    total = triangle_areas(disk.vertices, disk.faces[original]).sum()
+    areas = triangle_areas(disk.vertices, disk.faces)
     clipped = clip(disk.vertices, disk.faces, values)
     kept = original[clipped.face_parent]
-    return float(triangle_areas(clipped.vertices, clipped.faces[kept]).sum() / total)
+    on_rim = original & np.all(values[disk.faces] == 0, axis=1)
+    inside = triangle_areas(clipped.vertices, clipped.faces[kept]).sum() + areas[on_rim].sum()
+    return float(inside / areas[original].sum())
 
 
 def snapped(values: np.ndarray, edge: float) -> np.ndarray:
