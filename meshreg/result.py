@@ -46,7 +46,8 @@ class Registration:
     params : dict
         Every parameter that produced the result; in mode "auto" also ``starts`` (each registered start's
         symmetry, coarse E, E and residual) and ``mirror`` (the best start the search dropped as mirrored: its
-        symmetry, coarse E and ``fits_better``, whether it beat the chosen start's coarse E by half).
+        symmetry, coarse E and ``fits_better``, whether it beat the chosen start's coarse E by half while the answer
+        does not fit the second's points, :data:`meshreg.choice.MIRROR_FIT_RESIDUAL`).
     timings : dict
         Seconds per stage (``search``, ``dp``, ``gd``, ``smoothing`` (mode "gd": the smoothed levels),
         ``refine``, ``alternatives`` (mode "auto"), ``total``).
