@@ -235,8 +235,8 @@ class Registration:
     def _first_uv(self, where) -> np.ndarray:
         first = self._sides()[0]
         where = np.asarray(where)
-        if where.ndim == 2 and where.shape[1] == 3 and np.issubdtype(where.dtype, np.floating):
-            return first.uv_of_points(where)[0]
+        if where.ndim == 2 and where.shape[1] == 3 and where.dtype.kind in "fiu":  # integer coordinates too
+            return first.uv_of_points(where.astype(float))[0]
         if where.ndim != 1 or not np.issubdtype(where.dtype, np.integer):
             raise InputError("correspondence takes vertex ids (k,) or points (k, 3) of the first surface")
         if len(where) and (where.min() < 0 or where.max() >= first.n_input):
