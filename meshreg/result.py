@@ -191,7 +191,8 @@ class Registration:
 
     def correspondence_on_first(self) -> np.ndarray:
         """For each vertex of the second surface as given, its matched point on the first (first's coordinates),
-        shape (n2, 3); NaN where cleanup dropped the vertex."""
+        shape (n2, 3); NaN where cleanup dropped the vertex (a removed boundary ear's apex is matched at its foot
+        on the ear's base)."""
         first, second = self._sides()
         return first.at_uv(inverse_uv(self.h, self.r, self.t, second.input_uv()))[0]
 
