@@ -148,9 +148,19 @@ def find_alternatives(
                 energy, twin_residual.plus, chosen.energy, residual.plus, options
             ):
                 continue
-        if not _listed(found, k, rotation):
-            found.append(Alternative(k, rotation, float(energy), twin_residual.plus))
+        _add(found, Alternative(k, rotation, float(energy), twin_residual.plus))
     return sorted(found, key=lambda a: a.energy)
+
+
+def _add(found: list[Alternative], alternative: Alternative) -> None:
+    """List ``alternative`` once per symmetry (what ``Options.symmetry`` can pin): of two twins under one symmetry,
+    the lower E. Two whose rotations differ by more than SAME_ANSWER were listed twice, and the note said "the others
+    4 (180 deg), 4 (180 deg)" (a held-out square terrain meshed with 8 boundary vertices)."""
+    same = next((i for i, a in enumerate(found) if a.symmetry == alternative.symmetry), None)
+    if same is None:
+        found.append(alternative)
+    elif alternative.energy < found[same].energy:
+        found[same] = alternative
 
 
 def _listed(found: list[Alternative], symmetry: int, rotation: np.ndarray) -> bool:

@@ -163,7 +163,7 @@ def _params(options: Options, chosen, runs, ranked, window: float, first: GridSu
         "bend_energy": chosen.bend_energy,
         "bend_window_used": window,
         "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
-        "mirror": mirror_record(*_mirror_starts(ranked, chosen.symmetry)),
+        "mirror": mirror_record(*_mirror_starts(ranked, chosen.symmetry), chosen.residual.plus),
         "starts": [
             {
                 "symmetry": run.symmetry,

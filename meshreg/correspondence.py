@@ -53,12 +53,23 @@ class Side:
 
     @classmethod
     def from_disk(cls, disk, uv: np.ndarray, n_input: int) -> Side:
-        """A cleaned disk mesh (:class:`meshreg.mesh.topology.DiskMesh`) and its map to the square ``uv``."""
+        """A cleaned disk mesh (:class:`meshreg.mesh.topology.DiskMesh`) and its map to the square ``uv``. The apexes
+        of boundary ears that cleanup removed (``disk.ear_feet``) are layout vertices after the disk's, in no triangle,
+        placed on the square at their foot on the ear's base: they are matched there, not left without a match."""
         layout = np.arange(len(disk.vertices), dtype=float)[:, None]
         index = disk.to_input(layout, n_input, [-1.0])[:, 0].astype(np.int64)
         source = np.full(len(disk.vertices), -1, dtype=np.int64)
         source[: len(disk.vertex_map)] = disk.vertex_map
-        return cls(disk.vertices, disk.faces, uv, index, source)
+        feet = disk.ear_feet
+        if feet is None:
+            return cls(disk.vertices, disk.faces, uv, index, source)
+        added = np.full(n_input, -1, dtype=np.int64)
+        added[feet.ids] = len(disk.vertices) + np.arange(len(feet.ids))
+        index = np.where(index >= 0, index, added if disk.aliases is None else added[disk.aliases])
+        t = feet.t[:, None]
+        at_feet = (1 - t) * uv[feet.base[:, 0]] + t * uv[feet.base[:, 1]]
+        vertices, layout = np.vstack([disk.vertices, feet.points]), np.vstack([uv, at_feet])
+        return cls(vertices, disk.faces, layout, index, np.r_[source, feet.ids])
 
     @property
     def n_input(self) -> int:

@@ -195,7 +195,7 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
         with Log(callback, timings).clock("alternatives"):
             alternatives = find_alternatives(first, second, area, symmetry, best, residual, options, Log(callback))
     timings["total"] = time.perf_counter() - start
-    params = _params(options, best, starts, candidates, mirror_record(mirror, starts[chosen]))
+    params = _params(options, best, starts, candidates, mirror_record(mirror, starts[chosen], residual.plus))
     h = symmetry_map(symmetry, best.h)
     return Registration(
         rotation=best.rotation,

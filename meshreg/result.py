@@ -46,7 +46,8 @@ class Registration:
     params : dict
         Every parameter that produced the result; in mode "auto" also ``starts`` (each registered start's
         symmetry, coarse E, E and residual) and ``mirror`` (the best start the search dropped as mirrored: its
-        symmetry, coarse E and ``fits_better``, whether it beat the chosen start's coarse E by half).
+        symmetry, coarse E and ``fits_better``, whether it beat the chosen start's coarse E by half while the answer
+        does not fit the second's points, :data:`meshreg.choice.MIRROR_FIT_RESIDUAL`).
     timings : dict
         Seconds per stage (``search``, ``dp``, ``gd``, ``smoothing`` (mode "gd": the smoothed levels),
         ``refine``, ``alternatives`` (mode "auto"), ``total``).
@@ -190,7 +191,8 @@ class Registration:
 
     def correspondence_on_first(self) -> np.ndarray:
         """For each vertex of the second surface as given, its matched point on the first (first's coordinates),
-        shape (n2, 3); NaN where cleanup dropped the vertex."""
+        shape (n2, 3); NaN where cleanup dropped the vertex (a removed boundary ear's apex is matched at its foot
+        on the ear's base)."""
         first, second = self._sides()
         return first.at_uv(inverse_uv(self.h, self.r, self.t, second.input_uv()))[0]
 
@@ -234,8 +236,8 @@ class Registration:
     def _first_uv(self, where) -> np.ndarray:
         first = self._sides()[0]
         where = np.asarray(where)
-        if where.ndim == 2 and where.shape[1] == 3 and np.issubdtype(where.dtype, np.floating):
-            return first.uv_of_points(where)[0]
+        if where.ndim == 2 and where.shape[1] == 3 and where.dtype.kind in "fiu":  # integer coordinates too
+            return first.uv_of_points(where.astype(float))[0]
         if where.ndim != 1 or not np.issubdtype(where.dtype, np.integer):
             raise InputError("correspondence takes vertex ids (k,) or points (k, 3) of the first surface")
         if len(where) and (where.min() < 0 or where.max() >= first.n_input):

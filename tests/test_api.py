@@ -84,6 +84,9 @@ def test_correspondence_by_ids_by_points_and_barycentric(pair, result):
     )  # on the second's triangles
     with pytest.raises(InputError, match="vertex ids"):
         result.correspondence([len(v1)])
+    # integer coordinates are points too (held out 2026-12-01: refused as "vertex ids (k,) or points (k, 3)")
+    corner = np.round(v1[ids[:1]]).astype(np.int64)
+    assert np.allclose(result.correspondence(corner), result.correspondence(corner.astype(float)))
 
 
 def test_vertex_pairs_distances_fitness_and_inlier_rmse(pair, result):

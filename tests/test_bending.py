@@ -47,6 +47,28 @@ def test_turning_within_the_surface_survives_a_roll_and_the_turning_in_space_doe
     assert in_space.sum() - in_space[corners].sum() > 0.9 * 2 * np.pi
 
 
+
+def test_a_corner_cut_by_ear_removal_is_one_corner():
+    # held out 2026-12-01: a triangular sheet (apex angle 53 degrees) whose apex ear cleanup removed turns by about 63
+    # degrees at both ends of the cut; with its two base corners that made "four clear corners", two of them 0.025 of
+    # its size apart, and the match was 13% of its size wrong
+    n = 12
+    i, j = (a.ravel() for a in np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij"))
+    inside = i + j <= n
+    i, j = i[inside], j[inside]
+    corner_a, corner_b, apex = np.array([-1.0, -1, 0]), np.array([1.0, -1, 0]), np.array([0.0, 1, 0])
+    v = corner_a + np.outer(i / n, corner_b - corner_a) + np.outer(j / n, apex - corner_a)
+    v[:, 2] = 0.1 * np.sin(2 * v[:, 0] + v[:, 1])
+    index = {(a, b): k for k, (a, b) in enumerate(zip(i.tolist(), j.tolist(), strict=True))}
+    up = [(index[a, b], index[a + 1, b], index[a, b + 1]) for a, b in index if a + b < n]
+    down = [(index[a + 1, b], index[a + 1, b + 1], index[a, b + 1]) for a, b in index if a + b < n - 1]
+    disk = prepare_disk(v, np.array(up + down))
+    assert any("3 boundary ears" in line for line in disk.report)
+    turning = np.degrees(geodesic_turning(disk.vertices, disk.faces, disk.boundary))
+    assert np.sum(turning > 60) == 4  # the base corners and the two ends of the apex's cut
+    assert sharp_corners(disk.vertices, disk.faces, disk.boundary) is None  # three corners: not a quadrilateral
+
+
 def test_a_square_sheet_keeps_its_corner_ears_and_its_corners():
     # the corners of a Delaunay square are triangles with two sides on the boundary (ears): they must stay
     v, f, params = random_disk_mesh(flat, 300, seed=4)

@@ -146,8 +146,9 @@ def test_max_starts_option(grid_files, tmp_path):
 
 
 def test_version_and_a_quick_help_that_loads_no_numerics():
-    proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "--version"], capture_output=True, text=True)
-    assert proc.returncode == 0 and proc.stdout.startswith("meshreg ")
+    for module in ("meshreg.cli", "meshreg"):  # python -m meshreg as well (held out 2026-12-01: no __main__)
+        proc = subprocess.run([sys.executable, "-m", module, "--version"], capture_output=True, text=True)
+        assert proc.returncode == 0 and proc.stdout.startswith("meshreg ")
     code = (
         "import sys, meshreg.cli; meshreg.cli.build_parser(); "
         "print(sorted({'numba', 'scipy', 'numpy'} & set(sys.modules)))"

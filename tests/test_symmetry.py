@@ -267,3 +267,27 @@ def test_results_without_residual_still_load(tmp_path):
     np.savez(tmp_path / "old.npz", **old)
     loaded = meshreg.Registration.load(tmp_path / "old.npz")
     assert np.isnan(loaded.residual) and loaded.alternatives == [] and not loaded.mirrored
+
+
+def test_a_mirror_start_ranked_first_by_chance_is_not_said_to_fit_better():
+    # held out 2026-12-01: a face mesh (mirror-symmetric) against its remeshed copy; its mirrored start ranked first
+    # (coarse E_w 0.0012, the chosen start 0.0027) and the note said a mirror image fits better, though the answer
+    # fitted the points (residual 0.0033, points right within 0.3%)
+    from meshreg.choice import mirror_record
+    from meshreg.search import Start
+
+    mirror, chosen = Start(2, None, 0.0012), Start(6, None, 0.0027)
+    assert not mirror_record(mirror, chosen, 0.0033)["fits_better"]
+    assert mirror_record(mirror, chosen, 0.057)["fits_better"]  # a true mirror image's answer (test above)
+
+
+def test_an_alternative_is_listed_once_per_symmetry():
+    # held out 2026-12-01: two twins under symmetry 4 whose rotations differed by more than SAME_ANSWER were both listed
+    # and the note said "the others 4 (180 deg), 4 (180 deg)": pinning symmetry=4 cannot choose between them
+    from meshreg.alternatives import Alternative, _add
+
+    found = []
+    for energy, angle in ((0.0279, 0.0), (0.0268, 10.0), (0.03, 0.0)):
+        _add(found, Alternative(4, Rotation.from_euler("z", angle, degrees=True).as_matrix(), energy, 0.07))
+    _add(found, Alternative(3, np.eye(3), 0.05, 0.07))
+    assert [(a.symmetry, a.energy) for a in found] == [(4, 0.0268), (3, 0.05)]

@@ -11,6 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 SHARP_TURN = np.pi / 3  # a boundary vertex turning (within the surface) by more than this counts as a clear corner
+# consecutive clear turns adding up to less than this are one corner cut by cleanup (its turn is pi minus its angle);
+# two corners of a quadrilateral joined by one edge add up to about pi
+ONE_CORNER_TURN = 0.9 * np.pi
 
 
 def angle_sums(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -51,6 +54,22 @@ def geodesic_turning(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) 
 
 def sharp_corners(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) -> np.ndarray | None:
     """Loop positions (4,), increasing, of the boundary's four clear corners (geodesic turning above SHARP_TURN),
-    or None when it does not have exactly four."""
-    sharp = np.flatnonzero(geodesic_turning(vertices, faces, loop) > SHARP_TURN)
-    return sharp if len(sharp) == 4 else None
+    or None when it does not have exactly four. Clear turns at consecutive boundary vertices that add up to less
+    than ONE_CORNER_TURN are one corner, at the sharpest of them (:func:`_one_per_corner`)."""
+    turning = geodesic_turning(vertices, faces, loop)
+    sharp = np.flatnonzero(turning > SHARP_TURN)
+    if len(sharp) > 4 or len(sharp) == len(loop):
+        return sharp if len(sharp) == 4 else None
+    corners = _one_per_corner(sharp, turning) if len(sharp) == 4 else sharp
+    return corners if len(corners) == 4 else None
+
+
+def _one_per_corner(sharp: np.ndarray, turning: np.ndarray) -> np.ndarray:
+    """Loop positions of clear turns (increasing, fewer than the loop's vertices) with every run of consecutive ones
+    whose turning adds up to less than ONE_CORNER_TURN replaced by its sharpest: a sharp corner whose boundary ear
+    cleanup removed turns at both ends of the cut, by the corner's turn in all (a held-out triangular sheet, apex
+    angle 53 degrees, got two corners 0.025 of its size apart there and its match was 13% of its size wrong)."""
+    ends = np.flatnonzero(np.diff(np.r_[sharp, sharp[0] + len(turning)]) > 1)  # a run of consecutive ones ends here
+    runs = np.split(np.roll(sharp, -(ends[0] + 1)), (ends - ends[0])[1:])
+    kept = [[run[np.argmax(turning[run])]] if turning[run].sum() < ONE_CORNER_TURN else run for run in runs]
+    return np.sort(np.concatenate(kept))

@@ -68,6 +68,29 @@ def _read_with_trimesh(path: Path, suffix: str) -> tuple[np.ndarray, np.ndarray]
     return vertices, np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
 
 
+@dataclass(frozen=True)
+class EarFeet:
+    """Vertices that cleanup dropped with the boundary ears they were the apex of, and where each is matched: its foot
+    on the ear's base, a boundary edge of the disk (the ear collapses onto it under the map to the square).
+
+    Attributes
+    ----------
+    ids : ndarray (k,)
+        Input ids of the apexes.
+    points : ndarray (k, 3)
+        Their positions.
+    base : ndarray (k, 2)
+        The disk vertices at the two ends of each ear's base.
+    t : ndarray (k,)
+        The foot of each apex on its base: (1 - t) base[:, 0] + t base[:, 1], t in [0, 1].
+    """
+
+    ids: np.ndarray
+    points: np.ndarray
+    base: np.ndarray
+    t: np.ndarray
+
+
 @dataclass
 class DiskMesh:
     """A mesh with disk topology and its boundary loop.
@@ -83,6 +106,10 @@ class DiskMesh:
         n - k vertices after them were added by hole filling (one at the centre of each filled hole).
     report : list of str
         What the cleanup did.
+    aliases : ndarray (n_input,) or None
+        The representative of each input vertex when cleanup welded coincident vertices.
+    ear_feet : EarFeet or None
+        The apexes of removed boundary ears that no other triangle held, each with its foot on the ear's base.
     """
 
     vertices: np.ndarray
@@ -91,6 +118,7 @@ class DiskMesh:
     vertex_map: np.ndarray
     report: list = field(default_factory=list)
     aliases: np.ndarray | None = None
+    ear_feet: EarFeet | None = None
 
     def to_input(self, values: np.ndarray, n_input: int, fill) -> np.ndarray:
         """Per-vertex values (n, k) of this disk carried back to the ``n_input`` vertices of the mesh as given.
@@ -178,7 +206,8 @@ def prepare_disk(
         f = aliases[f]
         f = f[~_repeated_corner(f)]
         welded = int(np.sum(aliases != np.arange(len(v))))
-        report.append(f"welded {welded} coincident vertices (the mesh came in {pieces} pieces)")
+        how = f"the mesh came in {pieces} pieces" if pieces > 1 else "a seam cut into the surface"
+        report.append(f"welded {welded} coincident vertices ({how})")
     edges = _edges(f)  # recomputed only when a step changes the faces
     f, edges = _unchanged_or_new(_consistent_orientation(f, cleanup, report, edges), f, edges)
     f, edges = _unchanged_or_new(_unpinched(f, cleanup, report, edges), f, edges)
@@ -189,8 +218,10 @@ def prepare_disk(
         v, f, added, rim = _fill_holes(v, f, loops)
         edges = _edges(f)
         report.append(f"filled {added} hole{'s' if added > 1 else ''} ({rim} boundary vertices)")
+    ears = np.empty((0, 3), dtype=np.int64)
     if cleanup:
-        f, edges = _unchanged_or_new(_without_ears(v, f, report, edges), f, edges)
+        kept, ears = _without_ears(v, f, report, edges)
+        f, edges = _unchanged_or_new(kept, f, edges)
         _kept_enough(v, given, len(f) - rim, report)
     used = _used_vertices(f, len(v))
     original = used[used < n]
@@ -198,9 +229,26 @@ def prepare_disk(
         report.append(f"dropped {n - len(original)} unreferenced vertices")
     remap = np.full(len(v), -1)
     remap[used] = np.arange(len(used))
+    feet = _ear_feet(v, ears, remap)
     v, f = v[used], remap[f]
     edges = (remap[edges[0]], *edges[1:])  # an increasing renumbering keeps the edge table's order
-    return DiskMesh(v, f, np.array(_single_loop(v, f, edges)), original, report, aliases)
+    return DiskMesh(v, f, np.array(_single_loop(v, f, edges)), original, report, aliases, feet)
+
+
+def _ear_feet(v: np.ndarray, ears: np.ndarray, remap: np.ndarray) -> EarFeet | None:
+    """The apexes of removed ears (faces (e, 3), ids before ``remap``, the renumbering of the kept vertices, -1 for
+    dropped ones) that were dropped, each with its foot on the ear's base (kept vertices, renumbered); None without."""
+    dropped = remap[ears] < 0
+    ears, dropped = ears[dropped.sum(axis=1) == 1], dropped[dropped.sum(axis=1) == 1]
+    if len(ears) == 0:
+        return None
+    apex = ears[dropped]
+    base = ears[~dropped].reshape(-1, 2)
+    apex, first = np.unique(apex, return_index=True)  # an apex of two ears: the first
+    base = base[first]
+    a, b = v[base[:, 0]], v[base[:, 1]]
+    t = np.clip(np.sum((v[apex] - a) * (b - a), axis=1) / np.maximum(np.sum((b - a) ** 2, axis=1), 1e-300), 0, 1)
+    return EarFeet(apex, v[apex], remap[base], t)
 
 
 def _used_vertices(faces: np.ndarray, n: int) -> np.ndarray:
@@ -347,30 +395,31 @@ def _largest_component(f: np.ndarray, n: int, cleanup: bool, report: list) -> np
     return f[keep]
 
 
-def _without_ears(v: np.ndarray, f: np.ndarray, report: list, edges: tuple) -> np.ndarray:
+def _without_ears(v: np.ndarray, f: np.ndarray, report: list, edges: tuple) -> tuple[np.ndarray, np.ndarray]:
     """Faces without boundary ears (two sides on the boundary), in one pass: peeling again would eat thin strips
-    triangle by triangle.
+    triangle by triangle; and the ears removed.
 
     An ear collapses under a map onto a convex boundary when its three corners land on one side of the square, but
     not when its apex (the vertex between its two boundary sides) is a corner of the square: so when the boundary
     has exactly four clear corners (:func:`~meshreg.mesh.boundary.sharp_corners`, counted with the ears in place),
     the ears at those corners are kept (a square sheet's corner triangles are ears)."""
+    none = np.empty((0, 3), dtype=f.dtype)
     if len(f) <= 1:
-        return f
+        return f, none
     _, _, inverse, counts, _ = edges
     on_boundary = (counts[inverse] == 1).reshape(3, -1).T  # (m, 3): side k runs from corner k to corner k + 1
     ears = on_boundary.sum(axis=1) >= 2
     if not ears.any() or ears.all():
-        return f
+        return f, none
     loops = _boundary_loops(f, edges)
     corners = sharp_corners(v, f, loops[0]) if len(loops) == 1 else None
     if corners is not None:
         apex = f[np.arange(len(f)), (np.argmax(on_boundary & np.roll(on_boundary, 1, axis=1), axis=1))]
         ears &= ~np.isin(apex, np.asarray(loops[0])[corners])
         if not ears.any():
-            return f
+            return f, none
     report.append(f"removed {int(ears.sum())} boundary ears (triangles with two sides on the boundary)")
-    return f[~ears]
+    return f[~ears], f[ears]
 
 
 def _single_loop(v: np.ndarray, f: np.ndarray, edges: tuple) -> list:
@@ -392,16 +441,39 @@ def _single_loop(v: np.ndarray, f: np.ndarray, edges: tuple) -> list:
 
 def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
     """For a mesh in several pieces held together only by coincident vertices (a triangle soup, seams of an
-    exporter): each vertex's representative (the first vertex at its position) and the number of pieces, else
-    (None, pieces). A mesh that is one piece is never welded: its coincident vertices may be a deliberate cut."""
+    exporter): each vertex's representative (the first vertex at its position) and the number of pieces. A mesh in
+    one piece gets its coincident boundary vertices welded only when that leaves a disk (:func:`_seam_aliases`).
+    Else (None, pieces)."""
     pieces = face_components(f, len(v))[1]
     if pieces < 2:
-        return None, pieces
+        return _seam_aliases(v, f), pieces
     _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
     aliases = first[inverse.ravel()]
     if np.all(aliases == np.arange(len(v))) or face_components(aliases[f], len(v))[1] >= pieces:
         return None, pieces
     return aliases, pieces
+
+
+def _seam_aliases(v, f) -> np.ndarray | None:
+    """Representatives of a one-piece mesh's coincident boundary vertices when welding them closes a slit and the
+    mesh stays a disk (an exporter's seam cut into the surface from its rim: welded, the rim is one loop again, Euler
+    characteristic 1); None otherwise, so that a deliberate cut is kept (a cylinder cut open would become an annulus,
+    a sphere cut open a closed surface)."""
+    if len(f) == 0:
+        return None
+    rim = np.unique(boundary_edges(f))
+    _, first, inverse = np.unique(v[rim], axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(rim):
+        return None
+    aliases = np.arange(len(v))
+    aliases[rim] = rim[first[inverse.ravel()]]
+    welded = aliases[f]
+    welded = welded[~_repeated_corner(welded)]
+    counts = edge_table(welded)[3]
+    if len(welded) < len(f) or np.any(counts > 2) or len(boundary_sizes(welded)) != 1:
+        return None
+    euler = len(np.unique(welded)) - len(counts) + len(welded)
+    return aliases if euler == 1 else None
 
 
 def _fill_holes(v, f, loops):
