@@ -23,6 +23,10 @@ Modes (a table, :data:`SOLVE`, of functions each returning a :class:`~meshreg.sc
     one that a symmetry of either surface allows are listed in ``result.alternatives``
     (:mod:`meshreg.alternatives`).
 
+In every mode but "dp", an answer that fits the normals of one shape while its points are still apart (a nearly
+flat sheet, whose E hardly changes as h slides) is refined once more with tighter stopping rules
+(:mod:`meshreg.stalled`).
+
 The descent and refinement schedule is in :mod:`meshreg.schedule`; ``refine="none", solver="gradient",
 smoothing=(), start_basis=5`` is the paper's procedure as published (Bernal & Lawrence, Section 4, Simplified
 Outline of Optimization Procedure, Steps 1-4). See docs/method.md.
@@ -47,6 +51,7 @@ from .result import Registration
 from .rotation import similarity
 from .schedule import Candidate, Descent, Log, Progress, dp_stage, gd_paths, valid_start, work_objective
 from .search import Start, apply_symmetry, symmetry_map
+from .stalled import polish_stalled
 from .surfaces import Mesh, as_input
 
 DEFAULTS = Options()
@@ -103,7 +108,7 @@ def register(
         The rare numerics (tolerances, iteration caps); see :class:`meshreg.options.Advanced`.
     callback : callable, optional
         ``callback(stage, iteration, E)`` after every accepted step (stage "dp", "gd", "refine", "kabsch",
-        "smoothing" or "alternatives").
+        "smoothing", "polish" or "alternatives").
 
     Returns
     -------
@@ -190,12 +195,13 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
         candidates[chosen].polish()
         residual = candidates[chosen].residual()
     best, symmetry = candidates[chosen], starts[chosen].symmetry
+    residual, stalled = polish_stalled(best, residual, options, timings, callback)
     alternatives = []
     if options.mode == "auto":
         with Log(callback, timings).clock("alternatives"):
             alternatives = find_alternatives(first, second, area, symmetry, best, residual, options, Log(callback))
     timings["total"] = time.perf_counter() - start
-    params = _params(options, best, starts, candidates, mirror_record(mirror, starts[chosen], residual.plus))
+    params = _params(options, best, starts, candidates, mirror_record(mirror, starts[chosen], residual.plus), stalled)
     h = symmetry_map(symmetry, best.h)
     return Registration(
         rotation=best.rotation,
@@ -217,8 +223,11 @@ def register_grids(first: GridSurface, second: GridSurface, options: Options, ca
     )
 
 
-def _params(options: Options, best: Candidate, starts: list[Start], candidates: list[Candidate], mirror) -> dict:
-    """Every parameter of a registration and what its search saw (``result.params``)."""
+def _params(
+    options: Options, best: Candidate, starts: list[Start], candidates: list[Candidate], mirror, stalled: dict | None
+) -> dict:
+    """Every parameter of a registration, what its search saw and what the polish of a stalled answer did
+    (:func:`~meshreg.stalled.polish_stalled`; None when it did not run) (``result.params``)."""
     return {
         **options.as_dict(),
         "gd_path": best.gd_path,
@@ -234,6 +243,7 @@ def _params(options: Options, best: Candidate, starts: list[Start], candidates: 
             for s, c in zip(starts, candidates, strict=True)
         ],
         "mirror": mirror,
+        "stalled_polish": stalled,
         "grid_first": list(best.objective.first.shape),
         "grid_second": list(best.objective.second.shape),
     }

@@ -47,13 +47,16 @@ class Registration:
         Every parameter that produced the result; in mode "auto" also ``starts`` (each registered start's
         symmetry, coarse E, E and residual) and ``mirror`` (the best start the search dropped as mirrored: its
         symmetry, coarse E and ``fits_better``, whether it beat the chosen start's coarse E by half while the answer
-        does not fit the second's points, :data:`meshreg.choice.MIRROR_FIT_RESIDUAL`).
+        does not fit the second's points, :data:`meshreg.choice.MIRROR_FIT_RESIDUAL`); on grids ``stalled_polish``,
+        what the second refinement pass of a stalled answer did (None when it did not run;
+        :func:`meshreg.stalled.polish_stalled`).
     timings : dict
         Seconds per stage (``search``, ``dp``, ``gd``, ``smoothing`` (mode "gd": the smoothed levels),
-        ``refine``, ``alternatives`` (mode "auto"), ``total``).
+        ``refine``, ``stalled_polish`` (when that pass ran), ``alternatives`` (mode "auto"), ``total``).
     energy_stages : tuple of str, length K
         The stage of each entry of ``energy_history`` ("start", "dp", "gd", "kabsch", "refine", "full grid": E on
-        the full grid on arrival from the work grid).
+        the full grid on arrival from the work grid, "polish": the second pass of a stalled answer,
+        :mod:`meshreg.stalled`).
     symmetry : int
         Index into :data:`meshreg.search.SQUARE_SYMMETRIES` of the symmetry of the square applied
         to the second surface first (0: none). h includes it: h = sigma o h', with h' the

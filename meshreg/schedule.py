@@ -150,9 +150,7 @@ def dp_stage(objective: Objective, options: Options, both: bool, rotation=None):
         for p in range(2 * rounds):
             # after the first pass each way, h is aligned: later passes search near the identity path
             near = radius if p >= 1 else 0
-            new_rotation, new_h, new_energy = dp_pass(
-                objective, rotation, h, options.window, rounds, p % 2 == 0, near
-            )
+            new_rotation, new_h, new_energy = dp_pass(objective, rotation, h, options.window, rounds, p % 2 == 0, near)
             # composing the two directions' steps can collapse cells, or stretch them beyond the descent's bound
             if not objective.admissible(new_h, options.advanced.max_stretch):
                 break
@@ -242,10 +240,22 @@ class Descent:
     finest : float
         The refinement levels whose spacing (of the B-spline knots; of the full grid's nodes) is below this
         (side lengths of the square) are not run. Default 0: all of them.
+    knots : tuple of int
+        Cubic B-spline functions per axis of the refinement levels before the node level, coarsest first (those
+        with at least half as many functions as the work grid has nodes per axis are left out). Default
+        :data:`REFINE_KNOTS`.
     """
 
-    def __init__(self, objective: Objective, options: Options, work: Objective, nodes: tuple, finest: float = 0.0):
-        self.objective, self.options, self.finest = objective, options, finest
+    def __init__(
+        self,
+        objective: Objective,
+        options: Options,
+        work: Objective,
+        nodes: tuple,
+        finest: float = 0.0,
+        knots: tuple[int, ...] = REFINE_KNOTS,
+    ):
+        self.objective, self.options, self.finest, self.knots = objective, options, finest, knots
         self.work, self.nodes = work, nodes
         self.solver = descend if options.solver == "gradient" else gauss_newton
         self.rounds = (options.advanced.max_rounds, options.advanced.round_tol)
@@ -324,7 +334,7 @@ class Descent:
         if refine:
             levels = [
                 (work, bspline_basis(k, work.r, work.t), False)
-                for k in REFINE_KNOTS
+                for k in self.knots
                 if k < min(work.first.shape) // 2 and 1.0 / (k - 3) >= self.finest
             ]
             for target in dict.fromkeys((work, objective)):  # the node level of the work grid, then the full one's
