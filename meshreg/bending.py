@@ -7,9 +7,11 @@ slides the correspondence away from the right one (on a sheet rolled by 180 degr
 the minimum found 0.53). So for meshes (``Options.bend_window`` > 0, mode "auto"):
 
 1. the symmetry of the square (which corner of the second's square is (0, 0), and whether r and t swap) is chosen
-   by E_w (:mod:`meshreg.local_rotation`) at h = that symmetry, in windows of ``advanced.choice_window``, on
-   coarse grids: local rotations absorb the bending, the relief within a window decides;
-2. from h = the symmetry (the parametrizations' own correspondence), h descends on E_w with windows of
+   by the ranking's E_w (:func:`meshreg.local_rotation.local_energy`) at h = that symmetry, in windows of
+   ``advanced.choice_window``, on coarse grids: local rotations absorb the bending, the relief within a window
+   decides;
+2. from h = the symmetry (the parametrizations' own correspondence), h descends on the descent's E_w
+   (:class:`meshreg.local_rotation.LocalObjective`: each cell under its own rotation and scale) with windows of
    ``bend_window``, in the basis of the descent (KL = ``basis``), then in the refinement levels that are not
    finer than ``finest``: for meshes, ``advanced.refine_triangles`` triangles, since below a few triangles two
    meshes of one surface are different piecewise-linear surfaces and a finer h fits their difference, not the

@@ -2,28 +2,46 @@
 
 E compares the shape functions of two surfaces after one rotation of the whole first surface. Bending a surface
 turns its normals by an amount that varies from place to place, so the true correspondence of a bent copy pays for
-the bending, and minimizing E slides the correspondence until normals that point the same way meet. Here each point
-x of the square gets its own rotation R(x), fitted to the normals within a Gaussian window of width ``window``
-around it (in side lengths of the square):
+the bending, and minimizing E slides the correspondence until normals that point the same way meet. Bending a
+sheet with relief also stretches the relief by a factor that varies from place to place (a point at height z over
+a cylinder of radius rho by (rho - z) / rho), which changes |q|^2, the area element. Two energies with rotations
+fitted in Gaussian windows of width ``window`` (in side lengths of the square) therefore serve the bending path
+(:mod:`meshreg.bending`), with
 
-    E_w(h, R) = sum_x w_x sum_y w_y K(x, y) |R(x) q1(y) - (q2, h)(y)|^2,
     K(x, y) = g(x - y) / kappa(y),  g a Gaussian of standard deviation ``window``,  kappa(y) = sum_x w_x g(x - y),
 
-with w the cell weights dr dt (so that sum_x w_x K(x, y) = 1: every cell counts once, also near the sides). Bending
-that turns the normals smoothly over lengths above ``window`` costs (almost) nothing; the relief within a window,
-the distribution of area and the relief's shape still decide where each point goes. As ``window`` grows, E_w tends
-to E.
+w the cell weights dr dt (so that sum_x w_x K(x, y) = 1: every cell counts once, also near the sides), and R(x)
+the rotation of the polar decomposition of the windowed cross-covariance C(x) = sum_y K(x, y) w_y (q2, h)(y)
+q1(y)^T (Kabsch at every x; nu(C) = trace(R^T C), the singular values' sum, the last one signed).
 
-For a given h, the best R(x) is the rotation of the polar decomposition of the windowed cross-covariance
-C(x) = sum_y K(x, y) w_y (q2, h)(y) q1(y)^T (Kabsch at every x), so E_w(h) = min_R E_w(h, R) is
+The descent's E_w (:class:`LocalObjective`) compares each cell y under its own similarity s(y) R(y):
 
-    E_w(h) = sum_y w_y (|q1(y)|^2 + |(q2, h)(y)|^2) - 2 sum_x w_x nu(C(x)),
+    E_w(h) = sum_y w_y |s(y) R(y) q1(y) - (q2, h)(y)|^2,
+    s(x)^2 = sum_y L(x, y) w_y |(q2, h)(y)|^2 / sum_y L(x, y) w_y |q1(y)|^2,
 
-nu(C) = trace(R^T C) at the best rotation R (the singular values' sum, the last one signed). Its derivative in h
-(the best R does not move to first order) is that of ``sum_y w_y |M(y) q1(y) - (q2, h)(y)|^2`` with the averaged
-rotations M(y) = sum_x w_x K(x, y) R(x) held fixed, whose value differs from E_w(h) by a constant: so a step that
-lowers this fixed-target energy lowers E_w(h) too, and the Gauss-Newton solver runs on :class:`LocalObjective`
-unchanged (:meth:`LocalObjective.linearize` refreshes the target at every iteration).
+L as K with windows SCALE_WIDTH times wider. Bending that turns the normals smoothly and stretching that changes the
+area smoothly, over lengths above the windows, cost (almost) nothing; the relief's shape within a window decides
+where each point goes. s is the windows' area ratio, not the least-squares scale nu(C) / sum_y K w |q1|^2, which a
+rotation's misfit lowers: where a window straddles a crease, that scale let the descent squeeze the crease (the
+benchmark's quick fold pair: median error 0.0075 -> 0.0165). The descent linearizes
+``sum_y w_y |T(y) - (q2, h)(y)|^2`` with the target T(y) = s(y) R(y) q1(y) held fixed and refits the similarities
+at every linearization (:meth:`LocalObjective.linearize`), as ICP alternates matching and fitting: the slope it
+uses leaves out how the fitted similarities move with h (they average over a window), and every accepted step is
+checked against E_w itself, so every accepted step lowers E_w.
+
+The ranking's E_w (:func:`local_energy`: the square's symmetries and corner placements at h = the symmetry)
+compares each cell under the rotations of all the windows around it, with no scale:
+
+    E_w(h) = min_R sum_x w_x sum_y w_y K(x, y) |R(x) q1(y) - (q2, h)(y)|^2
+           = sum_y w_y (|q1(y)|^2 + |(q2, h)(y)|^2) - 2 sum_x w_x nu(C(x)),
+
+which tends to E as ``window`` grows. Until 2026-12-01 the descent minimized it too; it charged the turning of a
+rolled sheet's normals within a window and the relief's stretch (four held-out Gaussian reliefs, peak to peak
+0.18, rolled 90 degrees: E_w at the true map 0.0050-0.0066 and 20-37% above that at the answer, which was
+0.011-0.021 of sqrt(area) from the truth; the descent's E_w at the true map: 0.00027-0.00056). For ranking, the
+area distribution it compares tells symmetric placements apart: ranked by the descent's E_w, a nearly
+point-symmetric sheet came back half a turn off (E 0.0199 instead of 0.0062) and the face scan crop's corner
+placement was worse (median error 0.0089 instead of 0.0049).
 
 numpy, the polar factors in numba: the Gaussian is applied as two dense matrices over the cell centres (exact on
 non-uniform grids).
@@ -41,6 +59,12 @@ TRUNCATE = 3.0  # the window's Gaussian is cut at this many standard deviations
 POLAR_DET = 1e-12  # polar factors by Newton's iteration where det C > this times |C|^3 (Frobenius), else by SVD
 POLAR_STEP = 1e-15  # the iteration stops when a step moves X (|X| = sqrt(3) at the end) by less than this
 POLAR_ITERATIONS = 60  # ... or gives up after this many steps (the SVD takes over)
+# the windows of the descent's area ratio (its scale) are this many times wider than those of the rotations: on the
+# benchmark's quick pairs (600 / 900 vertices), median errors, 1 -> 2: fold 0.0096 -> 0.0071, remeshed 0.0043 ->
+# 0.0039, roll 90 / 180 0.0051 / 0.0069 -> 0.0050 / 0.0066, stretch 0.0053 -> 0.0052; about 4: fold 0.0058, but
+# stretch 0.0066 and roll 180 0.0075 (wider windows absorb less of the stretch; 1 and 4 measured in prototypes that
+# also ranked the symmetries by this E_w)
+SCALE_WIDTH = 2.0
 
 
 def gaussian_rows(centres: np.ndarray, window: float) -> np.ndarray:
@@ -141,33 +165,45 @@ def _newton_polar(c, rotations, nu, done):
                 break
 
 
-def local_rotations(q1: np.ndarray, q2: np.ndarray, win: Window) -> tuple[float, np.ndarray]:
-    """E_w(h) for shape functions q1 and (q2, h) (M-1, N-1, 3), and the best rotation field R (M-1, N-1, 3, 3)."""
+def local_similarities(q1: np.ndarray, q2: np.ndarray, win: Window, wide: Window) -> tuple[float, np.ndarray]:
+    """E_w(h) for shape functions q1 and (q2, h) (M-1, N-1, 3), and the similarity field S = s R (M-1, N-1, 3, 3):
+    each cell's best rotation in the window ``win`` around it, and the square root of the area ratio in the window
+    ``wide`` around it (SCALE_WIDTH times wider)."""
     w = win.weights
     a = np.einsum("ija,ijb->ijab", q2, q1) * (w / win.kappa)[..., None, None]
-    rotations, nu = polar_rotations(win.apply(a))
+    rotations, _ = polar_rotations(win.apply(a))
+    area1, area2 = (wide.apply(np.sum(q * q, axis=-1) * (w / wide.kappa)) for q in (q1, q2))
+    scale = np.sqrt(area2 / np.where(area1 > 0, area1, np.inf))
+    similarities = rotations * scale[..., None, None]
+    return float(np.sum(w * np.sum((cell_target(q1, similarities) - q2) ** 2, axis=-1))), similarities
+
+
+def cell_target(q1: np.ndarray, similarities: np.ndarray) -> np.ndarray:
+    """The target S q1 (M-1, N-1, 3) of each cell under its own similarity S (M-1, N-1, 3, 3)."""
+    return np.einsum("ijab,ijb->ija", similarities, q1)
+
+
+def local_rotations(q1: np.ndarray, q2: np.ndarray, win: Window) -> float:
+    """The ranking's E_w (see the module's docstring) for shape functions q1 and (q2, h) (M-1, N-1, 3): every cell
+    under the rotations of all the windows around it, no scale (closed form: the sum over windows of nu(C))."""
+    w = win.weights
+    a = np.einsum("ija,ijb->ijab", q2, q1) * (w / win.kappa)[..., None, None]
+    _, nu = polar_rotations(win.apply(a))
     energy = float(np.sum(w * (np.sum(q1 * q1, axis=-1) + np.sum(q2 * q2, axis=-1))) - 2.0 * np.sum(w * nu))
-    return max(energy, 0.0), rotations
-
-
-def fixed_target(q1: np.ndarray, rotations: np.ndarray, win: Window) -> np.ndarray:
-    """The target M q1 (M-1, N-1, 3) of the fixed-target form of E_w (see the module's docstring), for the best
-    rotation field R (M-1, N-1, 3, 3) of :func:`local_rotations`."""
-    averaged = win.apply(rotations * win.weights[..., None, None]) / win.kappa[..., None, None]
-    return np.einsum("ijab,ijb->ija", averaged, q1)
+    return max(energy, 0.0)
 
 
 def local_energy(first_points: np.ndarray, second_points: np.ndarray, r, t, window: float) -> float:
-    """E_w at h = identity of two surfaces sampled on one grid (points (M, N, 3), both at area 1)."""
+    """The ranking's E_w at h = identity of two surfaces sampled on one grid (points (M, N, 3), both at area 1)."""
     win = Window(r, t, window)
-    return local_rotations(shape_function(first_points, r, t), shape_function(second_points, r, t), win)[0]
+    return local_rotations(shape_function(first_points, r, t), shape_function(second_points, r, t), win)
 
 
 class LocalObjective(Objective):
-    """E_w(h) = min over rotation fields R of E_w(h, R) (see the module's docstring), in the interface of
+    """E_w(h), each cell under the similarity fitted around it (see the module's docstring), in the interface of
     :class:`~meshreg.objective.Objective`, so that the descent and refinement levels run on it unchanged.
 
-    The global rotation the solvers move is redundant here (the rotation field absorbs it): :meth:`energy`
+    The global rotation the solvers move is redundant here (the similarity field absorbs it): :meth:`energy`
     ignores it and :meth:`rotation_jacobian` is zero.
 
     Parameters
@@ -182,31 +218,33 @@ class LocalObjective(Objective):
         super().__init__(first, second, second_area)
         self.shape_q1 = self.q1
         self._win = Window(self.r, self.t, window)
+        self._wide = Window(self.r, self.t, SCALE_WIDTH * window)
 
     def _fitted(self, h: np.ndarray) -> dict:
-        """E_w(h) and the best rotation field at h, kept with the second surface's values at h (the descent asks
+        """E_w(h) and the fitted similarity field at h, kept with the second surface's values at h (the descent asks
         for the energy of an accepted step and then linearizes at the same h: one fit serves both)."""
         last = self._at(h)
-        if "rotations" not in last:
-            last["energy"], last["rotations"] = local_rotations(self.shape_q1, self.q2(h), self._win)
+        if "similarities" not in last:
+            last["energy"], last["similarities"] = local_similarities(self.shape_q1, self.q2(h), self._win, self._wide)
         return last
 
     def energy(self, rotation: np.ndarray, h: np.ndarray) -> float:
-        """E_w(h) (the rotation is absorbed by the rotation field)."""
+        """E_w(h) (the rotation is absorbed by the similarity field)."""
         return self._fitted(h)["energy"]
 
     def _targeted(self, h: np.ndarray) -> float:
-        """Refresh the target M q1 from h (the fixed-target energy's q1); returns E_w(h)."""
+        """Refresh the target S q1 from h (the fixed-target energy's q1); returns E_w(h)."""
         last = self._fitted(h)
-        self.q1 = fixed_target(self.shape_q1, last["rotations"], self._win)
+        self.q1 = cell_target(self.shape_q1, last["similarities"])
         return last["energy"]
 
     def best_rotation_covariance(self, h: np.ndarray) -> np.ndarray:
-        """A covariance whose Kabsch rotation is the identity (the rotation field needs no global rotation)."""
+        """A covariance whose Kabsch rotation is the identity (the similarity field needs no global rotation)."""
         return np.eye(3)
 
     def gradient(self, rotation: np.ndarray, h: np.ndarray, dh_dr: np.ndarray, dh_dt: np.ndarray):
-        """E_w(h) and its derivative density along fields composed on h (at the best rotation field)."""
+        """E_w(h) and the derivative density of the fixed-target energy along fields composed on h (the similarity
+        field held at its fit at h)."""
         energy = self._targeted(h)
         _, grad = super().gradient(np.eye(3), h, dh_dr, dh_dt)
         return energy, grad

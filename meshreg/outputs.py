@@ -234,7 +234,7 @@ def _registration_figure(painter: Painter, result: Registration, first, second, 
         path,
         title=f"{title}, residual = {result.residual:.3g}",
         stages=result.energy_stages,
-        **({"minimized": "E_w (E with local rotations)"} if "bend_energy" in result.params else {}),
+        **({"minimized": "E_w (E with local similarities)"} if "bend_energy" in result.params else {}),
         notes=result.correspondence_notes(),
     )
 

@@ -38,7 +38,7 @@ class Registration:
         E after every accepted descent step and Kabsch step, starting from the initial E (in mode
         "gd", of the path kept; a scale-space path starts at E of the original pair at the end of the
         smoothed levels). Meshes registered in the bending path (``params["bend_energy"]`` present): E_w, the
-        energy with local rotations that was minimized (:mod:`meshreg.bending`).
+        energy with local similarities that was minimized (:mod:`meshreg.bending`).
     r : ndarray, shape (M,)
     t : ndarray, shape (N,)
         The first surface's partitions.
