@@ -47,7 +47,6 @@ def test_turning_within_the_surface_survives_a_roll_and_the_turning_in_space_doe
     assert in_space.sum() - in_space[corners].sum() > 0.9 * 2 * np.pi
 
 
-
 def test_a_corner_cut_by_ear_removal_is_one_corner():
     # held out 2026-12-01: a triangular sheet (apex angle 53 degrees) whose apex ear cleanup removed turns by about 63
     # degrees at both ends of the cut; with its two base corners that made "four clear corners", two of them 0.025 of
