@@ -130,9 +130,9 @@ def _register_spare(candidates: list[Candidate], starts: list[Start], spare: lis
     return len(candidates) - 1
 
 
-def normals_only(energy: float, residual: Residual) -> bool:
+def normals_only(energy: float, residual: Residual, bound: float = NORMALS_ONLY_RESIDUAL) -> bool:
     """Whether a match fits the normals of one shape (E < SAME_SHAPE_ENERGY) but not its points (residual above
-    NORMALS_ONLY_RESIDUAL): E cannot see that it is wrong.
+    ``bound``): E cannot see that it is wrong.
 
     Parameters
     ----------
@@ -140,8 +140,10 @@ def normals_only(energy: float, residual: Residual) -> bool:
         E of the match.
     residual : Residual
         Its coordinate residual (:mod:`meshreg.residual`).
+    bound : float
+        The residual (area 1) above which the points do not fit. Default NORMALS_ONLY_RESIDUAL.
     """
-    return energy < SAME_SHAPE_ENERGY and residual.plus > NORMALS_ONLY_RESIDUAL
+    return energy < SAME_SHAPE_ENERGY and residual.plus > bound
 
 
 def right_by_points(candidates: list[Candidate], chosen: int, residual: Residual, more=None) -> tuple[int, Residual]:

@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .choice import SAME_SHAPE_ENERGY
+from .choice import normals_only
 from .options import Options
 from .residual import Residual
 from .schedule import Candidate, Descent, Log, Progress
@@ -54,17 +54,9 @@ POLISH_KEEP_RESIDUAL = 0.5
 
 
 def is_stalled(energy: float, residual: Residual) -> bool:
-    """Whether an answer fits the normals of one shape (E < SAME_SHAPE_ENERGY) with its points further apart than
-    STALLED_RESIDUAL.
-
-    Parameters
-    ----------
-    energy : float
-        E of the answer.
-    residual : Residual
-        Its coordinate residual (:mod:`meshreg.residual`).
-    """
-    return energy < SAME_SHAPE_ENERGY and residual.plus > STALLED_RESIDUAL
+    """Whether an answer of E ``energy`` and coordinate ``residual`` fits the normals of one shape with its points
+    further apart than STALLED_RESIDUAL (:func:`meshreg.choice.normals_only` at that bound)."""
+    return normals_only(energy, residual, STALLED_RESIDUAL)
 
 
 def polish_options(options: Options) -> Options:
