@@ -52,14 +52,6 @@ REFINE_BELOW = 100 * SAME_SHAPE_ENERGY
 # coarse E, outside the start margin, and the chosen one was 180 degrees off (E 1.7e-4, residual 0.13; the right
 # one E 9.8e-8, residual 0.013)
 NORMALS_ONLY_SPARES = 4
-# a start whose coarse match fits the points (coordinate residual at most POINT_FIT_RESIDUAL, area 1) clearly better
-# than every start chosen by coarse E (below POINT_FIT_RATIO times their lowest residual) is registered in full too:
-# on a 2:1 sheet of low relief the coarse E of the starts that swap r and t was lower (a flat rectangle's q does not
-# change under that swap), the right symmetry ranked fifth (coarse E 0.037 against 0.022, residual 0.061 against
-# 0.31-0.76) and the answer was 180 degrees off with E 0.0088. The right coarse matches of the paper's same-shape
-# pairs had residuals of 0.003-0.10
-POINT_FIT_RESIDUAL = 0.15
-POINT_FIT_RATIO = 0.5
 
 
 def ranked_starts(first: GridSurface, second: GridSurface, options: Options, timings: dict):
@@ -232,8 +224,7 @@ def close_starts(starts: list[Start], max_starts: int, margin: float) -> list[St
     E cannot see; of twins, the first unless another's coarse match has a clearly lower coordinate residual,
     TWIN_RESIDUAL_MARGIN, which then replaces it, even the identity put first below). The identity symmetry goes first
     when it is within SYMMETRY_MARGIN of the best (ties, as on surfaces with a mirror symmetry, keep the given
-    parametrization). After them, one start more may come: the one whose coarse match fits the points clearly best
-    (:func:`point_fit_start`)."""
+    parametrization)."""
     best = starts[0]
     identity = next((s for s in starts if s.symmetry == 0), best)
     if identity.energy <= (1.0 + SYMMETRY_MARGIN) * best.energy:
@@ -247,17 +238,4 @@ def close_starts(starts: list[Start], max_starts: int, margin: float) -> list[St
             close.append(s)
         elif s.residual < (1.0 - TWIN_RESIDUAL_MARGIN) * close[twin].residual:
             close[twin] = s
-    close = close[:max_starts]
-    fit = point_fit_start(starts, close)
-    return close if fit is None else [*close, fit]
-
-
-def point_fit_start(starts: list[Start], close: list[Start]) -> Start | None:
-    """The start of ``starts`` whose coarse match fits the points clearly better than every start of ``close``
-    (residual at most POINT_FIT_RESIDUAL and below POINT_FIT_RATIO times theirs), or None. E sees normals only: on
-    nearly flat parts a wrong symmetry of the square can have the lower coarse E while the points show the right
-    one."""
-    fit = min(starts, key=lambda s: s.residual)
-    if fit.residual <= POINT_FIT_RESIDUAL and fit.residual < POINT_FIT_RATIO * min(s.residual for s in close):
-        return fit
-    return None
+    return close[:max_starts]

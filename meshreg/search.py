@@ -197,17 +197,21 @@ def best_start(
             mirrored = residual.mirrored
             if mirrored and any(s.symmetry == k for s in starts):
                 continue  # one mirrored record per symmetry: its best
-            energy = _after_t_pass(ob, result.rotation, h, result.energy, window)
+            energy = _after_t_pass(ob, result.rotation, h, window)
             starts.append(Start(k, result.rotation, energy, mirrored, residual.plus))
             if not mirrored:
                 break
     return sorted(starts, key=lambda s: s.energy)
 
 
-def _after_t_pass(objective: Objective, rotation: np.ndarray, h: np.ndarray, energy: float, window: int) -> float:
-    """The coarse E of a match found along r (``rotation``, ``h``, ``energy``) after one more DP pass along t, or
-    ``energy`` when that is lower. A warp along t that the pass along r cannot undo would otherwise rank the right
-    start low: a random terrain under a warp with a power of 1.29 along t had the right symmetry's coarse E at 0.217
-    against 0.115 for a wrong one, which ended at E 0.032 with points 4% off (``bench_heldout.py --random``, case
-    41); after the pass along t the right one ranked first and reached E 4e-9."""
-    return min(energy, dp_pass(objective, rotation, h, window, SEARCH_DP_ROUNDS, along_t=True)[2])
+def _after_t_pass(objective: Objective, rotation: np.ndarray, h: np.ndarray, window: int) -> float:
+    """The coarse E (:meth:`Objective.energy`) of a match found along r (``rotation``, ``h``) after one more DP pass
+    along t, or before it when that is lower (both measured alike: the DP's own energy, from its edge costs, differs
+    from E at the same R and h, by 40% on the paper's sine 2-3 pair). A warp along t that the pass along r cannot
+    undo would otherwise rank the right start low: a random terrain under a warp with a power of 1.29 along t had
+    the right symmetry's coarse E at 0.217 against 0.115 for a wrong one, which ended at E 0.032 with points 4% off
+    (``bench_heldout.py --random``, case 41); after the pass along t the right one ranked first and reached E 4e-9.
+    On 2:1 sheets of low relief the starts that swap r and t ranked first before it (a flat rectangle's q does not
+    see the swap) and the answers were 180 degrees off (cases 5, 16, 99)."""
+    before = objective.energy(rotation, h)
+    return min(before, dp_pass(objective, rotation, h, window, SEARCH_DP_ROUNDS, along_t=True)[2])

@@ -86,7 +86,7 @@ def test_of_twin_starts_the_one_with_the_clearly_lower_coarse_residual_is_regist
         Start(3, None, 0.50, residual=0.40),
         Start(5, None, 0.87 * (1 + 1e-15), residual=0.34),
         Start(4, None, 0.87, residual=1.06),
-        Start(1, None, 5.0, residual=0.3),
+        Start(1, None, 5.0, residual=0.1),
     )
     for order in ([best, twin_worse, twin_right, far], [best, twin_right, twin_worse, far]):
         chosen = close_starts(order, max_starts=3, margin=1.0)
@@ -95,19 +95,3 @@ def test_of_twin_starts_the_one_with_the_clearly_lower_coarse_residual_is_regist
     assert [s.symmetry for s in close_starts(even, 3, 1.0)] == [3, 4]  # equally good twins: the first
     identity_twin = [Start(2, None, 1.0, residual=0.3), Start(0, None, 1.0 + 1e-12, residual=1.0)]
     assert [s.symmetry for s in close_starts(identity_twin, 3, 0.1)] == [2]  # put first, still replaced
-
-
-def test_a_far_start_that_fits_the_points_clearly_best_is_registered_after_the_close_ones():
-    from meshreg.choice import close_starts
-    from meshreg.search import Start
-
-    close, far = (
-        [Start(4, None, 0.02, residual=0.76), Start(5, None, 0.021, residual=0.31)],
-        Start(3, None, 0.04, residual=0.06),
-    )
-    assert [s.symmetry for s in close_starts([*close, far], max_starts=3, margin=0.5)] == [4, 5, 3]
-    assert [s.symmetry for s in close_starts([*close, far], max_starts=1, margin=0.5)] == [4, 3]
-    loose = Start(3, None, 0.04, residual=0.2)  # not a fit of the points
-    assert [s.symmetry for s in close_starts([*close, loose], max_starts=3, margin=0.5)] == [4, 5]
-    near = Start(3, None, 0.04, residual=0.14)  # not clearly better than 0.25
-    assert [s.symmetry for s in close_starts([Start(5, None, 0.021, residual=0.25), near], 3, 0.5)] == [5]
