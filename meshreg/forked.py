@@ -30,8 +30,21 @@ def may_fork() -> bool:
         and (os.cpu_count() or 1) > 1
         and not multiprocessing.current_process().daemon
         and threading.active_count() == 1
-        and signal.getsignal(signal.SIGCHLD) != signal.SIG_IGN
+        and not sigchld_ignored()
     )
+
+
+def sigchld_ignored(status: str = "/proc/self/status") -> bool:
+    """Whether SIGCHLD is ignored in this process: the SigIgn mask of ``status`` (sees an ignore set from C too, by
+    an embedding host or an extension), else what Python set."""
+    try:
+        with open(status) as file:
+            for line in file:
+                if line.startswith("SigIgn:"):
+                    return bool(int(line.split()[1], 16) >> (signal.SIGCHLD - 1) & 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return signal.getsignal(signal.SIGCHLD) == signal.SIG_IGN
 
 
 # this process's own helper processes (multiprocessing.Process: the figure worker of :mod:`meshreg.painter`), each

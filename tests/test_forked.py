@@ -47,6 +47,20 @@ def test_no_child_is_forked_where_sigchld_is_ignored(monkeypatch):
     assert (started, pid, value) == (False, os.getpid(), 25)
 
 
+def test_sigchld_ignored_from_c_is_seen(monkeypatch):
+    import ctypes
+
+    libc = ctypes.CDLL(None)
+    libc.signal.restype = ctypes.c_void_p
+    libc.signal.argtypes = (ctypes.c_int, ctypes.c_void_p)
+    previous = libc.signal(signal.SIGCHLD, 1)  # SIG_IGN, behind Python's back
+    try:
+        assert meshreg.forked.sigchld_ignored() and not may_fork()
+    finally:
+        libc.signal(signal.SIGCHLD, previous)
+    assert not meshreg.forked.sigchld_ignored()
+
+
 def test_an_error_in_the_child_is_met_again_in_the_caller():
     with Forked(_refuse, 3) as job, pytest.raises(InputError, match="no 3"):
         job.result()
