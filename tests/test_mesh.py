@@ -354,6 +354,11 @@ def test_seam_slit_in_one_piece_is_welded():
     disk = prepare_disk(np.vstack([v, v[on]]), slit)
     assert any("welded 6 coincident vertices (a seam" in line for line in disk.report)
     assert len(disk.boundary) == len(prepare_disk(v, f).boundary) == 4 * n
+    holed = np.ones(len(f), dtype=bool)
+    holed[[8 * n + 8, 8 * n + 8 + n * n]] = False  # and a hole (the two triangles of one cell) elsewhere
+    disk = prepare_disk(np.vstack([v, v[on]]), slit[holed])
+    assert any("welded 6 coincident vertices (a seam" in line for line in disk.report)
+    assert any("filled 1 hole" in line for line in disk.report) and len(disk.boundary) == 4 * n
 
 
 def _ellipse_sheet(n_points, seed, rotation=None, scale=1.0):

@@ -455,10 +455,11 @@ def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
 
 
 def _seam_aliases(v, f) -> np.ndarray | None:
-    """Representatives of a one-piece mesh's coincident boundary vertices when welding them closes a slit and the
-    mesh stays a disk (an exporter's seam cut into the surface from its rim: welded, the rim is one loop again, Euler
-    characteristic 1); None otherwise, so that a deliberate cut is kept (a cylinder cut open would become an annulus,
-    a sphere cut open a closed surface)."""
+    """Representatives of a one-piece mesh's coincident boundary vertices when welding them closes a slit without
+    changing the surface's kind (an exporter's seam cut into the surface from its rim: welded, the loops are as many
+    as before or fewer, none added, and the surface has genus 0: Euler characteristic 2 - loops; a hole elsewhere
+    stays a hole for the cleanup to fill); None otherwise, so that a deliberate cut is kept (a cylinder cut open would
+    become an annulus, a sphere cut open a closed surface)."""
     if len(f) == 0:
         return None
     rim = np.unique(boundary_edges(f))
@@ -470,10 +471,11 @@ def _seam_aliases(v, f) -> np.ndarray | None:
     welded = aliases[f]
     welded = welded[~_repeated_corner(welded)]
     counts = edge_table(welded)[3]
-    if len(welded) < len(f) or np.any(counts > 2) or len(boundary_sizes(welded)) != 1:
+    loops = len(boundary_sizes(welded))
+    if len(welded) < len(f) or np.any(counts > 2) or not 1 <= loops <= len(boundary_sizes(f)):
         return None
     euler = len(np.unique(welded)) - len(counts) + len(welded)
-    return aliases if euler == 1 else None
+    return aliases if euler == 2 - loops else None
 
 
 def _fill_holes(v, f, loops):
