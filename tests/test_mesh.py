@@ -337,6 +337,20 @@ def test_the_apex_of_a_removed_ear_is_matched_at_its_foot():
     assert error[disk.ear_feet.ids].max() < 1.2 * edge and np.median(error) < 0.01 * edge  # at its foot: 0.85-0.95 edge
 
 
+def test_removed_ears_apexes_inside_a_partial_overlap_are_matched():
+    # review 2026-12-01: the trimmed disk of a partial overlap dropped the ear feet, so apexes inside the overlap
+    # came back NaN
+    v, f = _lattice_triangle(24)
+    v[:, 2] = 0.25 * np.exp(-((v[:, 0] - 0.2) ** 2 + (v[:, 1] + 0.3) ** 2) / 0.1) + 0.1 * np.sin(2 * v[:, 0] + v[:, 1])
+    apexes = prepare_disk(v, f).ear_feet.ids
+    below = v[f].max(axis=1)[:, 1] < 0.2  # the second: the sheet below y = 0.2, without the top apex
+    rotation = Rotation.from_euler("xyz", [35, -50, 120], degrees=True).as_matrix()
+    result = meshreg.register((v, f), (v @ rotation.T + 1.0, f[below]), resolution=41)
+    assert result.info["overlap"]["regime"] == "rigid"
+    inside = v[apexes, 1] < 0
+    assert inside.sum() == 2 and np.all(np.isfinite(result.correspondence()[apexes[inside]]))
+
+
 def test_seam_slit_in_one_piece_is_welded():
     # an exporter's seam cut into a grid sheet from its rim (one piece, duplicated vertices along the cut): held out
     # 2026-12-01, it was registered as a slit disk, 132 degrees off with points 37% of the size wrong

@@ -34,7 +34,7 @@ from ..rotation import kabsch
 from .align import Alignment, align, axes_pose
 from .graph import face_normals
 from .surface import Surface, transform_points
-from .topology import DiskMesh, prepare_disk, triangle_areas
+from .topology import DiskMesh, EarFeet, prepare_disk, triangle_areas
 from .warp import arap_warp
 
 RIM_EPSILON = 1e-6  # a closest point within this many edge lengths of the rim lies on it
@@ -577,6 +577,8 @@ def trim(disk: DiskMesh, signed: np.ndarray) -> tuple[DiskMesh, sp.csr_matrix]:
     order = np.r_[np.flatnonzero(known)[np.argsort(input_id[known], kind="stable")], np.flatnonzero(~known)]
     inverse = np.argsort(order)
     report = [f"kept the overlap: {len(order)} vertices ({int(known.sum())} of the mesh's)", *piece.report]
+    renumbered = np.full(len(disk.vertices), -1)
+    renumbered[parent[known]] = inverse[np.flatnonzero(known)]
     trimmed = DiskMesh(
         piece.vertices[order],
         inverse[piece.faces],
@@ -584,5 +586,16 @@ def trim(disk: DiskMesh, signed: np.ndarray) -> tuple[DiskMesh, sp.csr_matrix]:
         input_id[order][: int(known.sum())],
         report,
         disk.aliases,
+        _kept_feet(disk.ear_feet, renumbered),
     )
     return trimmed, carry[order]
+
+
+def _kept_feet(feet: EarFeet | None, renumbered: np.ndarray) -> EarFeet | None:
+    """The removed ears' apexes (:class:`~meshreg.mesh.topology.EarFeet`) whose base is kept by the trimming, their
+    base renumbered (``renumbered``: the disk's vertex ids to the trimmed disk's, -1 where cut away); None if none."""
+    if feet is None:
+        return None
+    base = renumbered[feet.base]
+    kept = np.all(base >= 0, axis=1)
+    return EarFeet(feet.ids[kept], feet.points[kept], base[kept], feet.t[kept]) if kept.any() else None
