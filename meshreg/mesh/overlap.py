@@ -105,6 +105,8 @@ class Overlap:
         The second disk's vertices in the first's frame: posed, and bent by the warp in the "elastic" regime.
     edge : float
         The pair's edge length (the coarser mesh's median edge, first's units).
+    edges : tuple of float
+        Each mesh's median edge (first's units: the second's at the pose's scale).
     rms : dict
         RMS distance over the overlap of the pose ("pose"), of the pose moved along its weakest motion when it was
         judged (:func:`probed_rms`, "probe") and, when it was tried, of the warp ("warp").
@@ -132,6 +134,7 @@ class Overlap:
     seconds: float = 0.0
     reason: str = ""
     target: Surface | None = field(default=None, repr=False, compare=False)
+    edges: tuple = (float("nan"), float("nan"))
 
     def summary(self) -> dict:
         """The overlap as plain values (for ``result.info``)."""
@@ -419,15 +422,17 @@ def _sides(first: DiskMesh, second: DiskMesh, target: Surface, placed: Surface, 
     return one, two, *_coincidence(one, two, edge)
 
 
-def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, slid: float, edge: float):
+def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, slid: float, edges: tuple):
     """The regime (and why the meshes are registered whole, if they are) of an overlap found at a pose ("rigid",
     whose :func:`slide` is ``slid`` edge lengths) or with the warp ("elastic"): "full" also when neither mesh reaches
-    more than RIM_SLACK edges beyond the other's rim."""
+    more than RIM_SLACK edges of the other (``edges``: the first's, the second's) beyond the other's rim."""
     tolerance = FULL_TOLERANCE[regime]
     if coincide < COINCIDE_ENOUGH:
         return "whole", "no pose or warp makes the meshes coincide where they overlap"
-    beyond = -min(float(np.min(one.signed, initial=0.0)), float(np.min(two.signed, initial=0.0)))
-    if (one.fraction >= 1 - tolerance and two.fraction >= 1 - tolerance) or beyond <= RIM_SLACK * edge:
+    # the first's vertices against the second's rim (chords of the second's edges), and the reverse
+    same_rim = -np.min(one.signed, initial=0.0) <= RIM_SLACK * edges[1]
+    same_rim &= -np.min(two.signed, initial=0.0) <= RIM_SLACK * edges[0]
+    if (one.fraction >= 1 - tolerance and two.fraction >= 1 - tolerance) or same_rim:
         return "full", ""
     if regime == "rigid" and not slid <= PINNED:
         return "whole", UNPINNED
@@ -449,22 +454,25 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
     if found is not None:
         return found
     alignment = align(s1, s2)
-    edge = max(s1.edge, alignment.scale * s2.edge)
+    edges = (s1.edge, alignment.scale * s2.edge)
+    edge = max(edges)
     posed = s2.moved(alignment.matrix)
     one, two, rms, coincide = _sides(first, second, s1, posed, edge)
     slid, spread = slide(s1, one.signed >= 0, rms) / edge, {"pose": rms}
     if rms <= TIGHT * edge:
-        regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid, edge)
+        regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid, edges)
         if regime == "rigid":
             spread["probe"] = probed_rms(s1, one.signed >= 0, posed, PROBE * edge)
             # unpinned only when the probe shows it: NaN (a narrow overlap) leaves the verdict to the slide
             regime, reason = ("whole", UNPINNED) if spread["probe"] <= TIGHT * edge else ("rigid", "")
-    elif _verdict("elastic", one, two, coincide, alignment.scale, slid, edge)[0] == "full":
+    elif _verdict("elastic", one, two, coincide, alignment.scale, slid, edges)[0] == "full":
         regime, reason = "full", ""  # the pose already shows each mesh covering the other: no warp needed
     else:
         regime, reason = "deformed", ""
     seconds = time.perf_counter() - start
-    return Overlap(regime, one, two, alignment, posed.vertices, edge, spread, coincide, slid, seconds, reason, s1)
+    return Overlap(
+        regime, one, two, alignment, posed.vertices, edge, spread, coincide, slid, seconds, reason, s1, edges
+    )
 
 
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
@@ -538,14 +546,16 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
     slid = posed.slide
     if posed.rms["pose"] <= RIGID_RATIO * rms:
         one, two, coincide, positions = posed.first, posed.second, posed.coincide, posed.positions
-        regime, reason = _verdict("rigid", one, two, coincide, scale, slid, posed.edge)
+        regime, reason = _verdict("rigid", one, two, coincide, scale, slid, posed.edges)
     else:
-        regime, reason = _verdict("elastic", one, two, coincide, scale, slid, posed.edge)
+        regime, reason = _verdict("elastic", one, two, coincide, scale, slid, posed.edges)
         positions = warped
         slid = float("nan")
     seconds = posed.seconds + time.perf_counter() - start
     return Overlap(
-        regime, one, two, posed.alignment, positions, posed.edge, rms_all, coincide, slid, seconds, reason, target
+        regime,
+        *(one, two, posed.alignment, positions, posed.edge, rms_all, coincide, slid, seconds, reason, target),
+        posed.edges,
     )
 
 
