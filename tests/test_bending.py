@@ -14,7 +14,7 @@ from meshreg.mesh import deform
 from meshreg.mesh.boundary import geodesic_turning, sharp_corners
 from meshreg.mesh.corners import SWAP
 from meshreg.mesh.correspond import register_meshes
-from meshreg.mesh.harmonic import HarmonicMap, choose_corners, given_corners
+from meshreg.mesh.harmonic import HarmonicMap, choose_corners, disk_corners, given_corners
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.mesh.topology import prepare_disk
 from meshreg.objective import Objective
@@ -65,7 +65,20 @@ def test_a_corner_cut_by_ear_removal_is_one_corner():
     assert any("3 boundary ears" in line for line in disk.report)
     turning = np.degrees(geodesic_turning(disk.vertices, disk.faces, disk.boundary))
     assert np.sum(turning > 60) == 4  # the base corners and the two ends of the apex's cut
-    assert sharp_corners(disk.vertices, disk.faces, disk.boundary) is None  # three corners: not a quadrilateral
+    assert sharp_corners(disk.vertices, disk.faces, disk.boundary) is not None  # the cut's two ends count twice
+    assert disk_corners(disk) is None  # the apex's once: three corners, not a quadrilateral
+
+
+def test_two_corners_joined_by_one_edge_are_two_corners():
+    # review 2026-12-01: a trapezoid strip one cell wide turns by 80 degrees at both ends of its short side; counted
+    # as one corner cut by cleanup, the strip lost its corners and two corner ears
+    n, length = 10, 3.0
+    s = np.linspace(0, 1, n + 1)
+    half = 1.0 - s * length * np.tan(np.radians(10))
+    v = np.vstack([np.c_[-half, s * length, np.zeros(n + 1)], np.c_[half, s * length, np.zeros(n + 1)]])
+    a = np.arange(n)
+    disk = prepare_disk(v, np.r_[np.c_[a, a + n + 1, a + n + 2], np.c_[a, a + n + 2, a + 1]])
+    assert not any("ears" in line for line in disk.report) and disk_corners(disk) is not None
 
 
 def test_a_square_sheet_keeps_its_corner_ears_and_its_corners():

@@ -11,9 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 SHARP_TURN = np.pi / 3  # a boundary vertex turning (within the surface) by more than this counts as a clear corner
-# consecutive clear turns adding up to less than this are one corner cut by cleanup (its turn is pi minus its angle);
-# two corners of a quadrilateral joined by one edge add up to about pi
-ONE_CORNER_TURN = 0.9 * np.pi
 
 
 def angle_sums(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -52,24 +49,30 @@ def geodesic_turning(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) 
     return np.pi - angle_sums(vertices, faces[on_loop[faces].any(axis=1)])[loop]  # the triangles at the loop only
 
 
-def sharp_corners(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) -> np.ndarray | None:
+def sharp_corners(
+    vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray, cut_bases: np.ndarray | None = None
+) -> np.ndarray | None:
     """Loop positions (4,), increasing, of the boundary's four clear corners (geodesic turning above SHARP_TURN),
-    or None when it does not have exactly four. Clear turns at consecutive boundary vertices that add up to less
-    than ONE_CORNER_TURN are one corner, at the sharpest of them (:func:`_one_per_corner`)."""
+    or None when it does not have exactly four.
+
+    ``cut_bases`` (k, 2), the vertex ids at the ends of the bases of boundary ears that cleanup removed
+    (:attr:`meshreg.mesh.topology.DiskMesh.ear_feet`): a corner whose ear was removed turns at both ends of the
+    cut, by about the corner's turn in all, so when both ends of one base turn clearly, only the sharper counts (a
+    held-out triangular sheet, apex angle 53 degrees, got "four clear corners", two of them 0.025 of its size apart,
+    and its match was 13% of its size wrong)."""
     turning = geodesic_turning(vertices, faces, loop)
     sharp = np.flatnonzero(turning > SHARP_TURN)
-    if len(sharp) > 4 or len(sharp) == len(loop):
-        return sharp if len(sharp) == 4 else None
-    corners = _one_per_corner(sharp, turning) if len(sharp) == 4 else sharp
-    return corners if len(corners) == 4 else None
+    if cut_bases is not None and len(cut_bases) and 1 < len(sharp) < len(loop):
+        sharp = _one_per_cut(sharp, turning, loop, cut_bases)
+    return sharp if len(sharp) == 4 else None
 
 
-def _one_per_corner(sharp: np.ndarray, turning: np.ndarray) -> np.ndarray:
-    """Loop positions of clear turns (increasing, fewer than the loop's vertices) with every run of consecutive ones
-    whose turning adds up to less than ONE_CORNER_TURN replaced by its sharpest: a sharp corner whose boundary ear
-    cleanup removed turns at both ends of the cut, by the corner's turn in all (a held-out triangular sheet, apex
-    angle 53 degrees, got two corners 0.025 of its size apart there and its match was 13% of its size wrong)."""
-    ends = np.flatnonzero(np.diff(np.r_[sharp, sharp[0] + len(turning)]) > 1)  # a run of consecutive ones ends here
-    runs = np.split(np.roll(sharp, -(ends[0] + 1)), (ends - ends[0])[1:])
-    kept = [[run[np.argmax(turning[run])]] if turning[run].sum() < ONE_CORNER_TURN else run for run in runs]
-    return np.sort(np.concatenate(kept))
+def _one_per_cut(sharp: np.ndarray, turning: np.ndarray, loop: np.ndarray, cut_bases: np.ndarray) -> np.ndarray:
+    """The clear turns ``sharp`` (loop positions, increasing) less the less sharp one of each pair of neighbours on
+    the loop that are the two ends of one cut base (:func:`sharp_corners`)."""
+    cuts = {frozenset(pair) for pair in np.asarray(cut_bases).tolist()}
+    keep = np.ones(len(sharp), dtype=bool)
+    for k, (i, j) in enumerate(zip(sharp.tolist(), np.roll(sharp, -1).tolist(), strict=True)):
+        if (i + 1) % len(loop) == j and frozenset((int(loop[i]), int(loop[j]))) in cuts:
+            keep[k if turning[i] < turning[j] else (k + 1) % len(sharp)] = False
+    return sharp[keep]

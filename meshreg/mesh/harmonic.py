@@ -40,9 +40,16 @@ def _principal_extremes(disk: DiskMesh) -> np.ndarray:
     return np.unique([proj[:, 0].argmax(), proj[:, 1].argmax(), proj[:, 0].argmin(), proj[:, 1].argmin()])
 
 
+def disk_corners(disk: DiskMesh) -> np.ndarray | None:
+    """Loop positions (4,) of the boundary's four clear corners (turns within the surface above 60 degrees; a corner
+    whose ear cleanup removed counted once), or None (:func:`~meshreg.mesh.boundary.sharp_corners`)."""
+    bases = None if disk.ear_feet is None else disk.ear_feet.base
+    return sharp_corners(disk.vertices, disk.faces, disk.boundary, bases)
+
+
 def has_sharp_corners(disk: DiskMesh) -> bool:
-    """Whether the boundary has exactly four clear corners (turns within the surface above 60 degrees)."""
-    return sharp_corners(disk.vertices, disk.faces, disk.boundary) is not None
+    """Whether the boundary has exactly four clear corners (:func:`disk_corners`)."""
+    return disk_corners(disk) is not None
 
 
 def given_corners(disk: DiskMesh, corners) -> tuple[np.ndarray, bool]:
@@ -87,7 +94,7 @@ def choose_corners(disk: DiskMesh, corners=None, start: int | None = None) -> np
     if len(loop) < 4:
         raise InputError("the boundary has fewer than 4 vertices: it cannot be mapped to a square")
     if start is None:
-        sharp = sharp_corners(disk.vertices, disk.faces, loop)
+        sharp = disk_corners(disk)
         if sharp is not None:
             return sharp
         extremes = _principal_extremes(disk)
