@@ -180,28 +180,35 @@ def best_start(
     rotations = np.concatenate([cube_rotations(), principal_rotations(coarse1, coarse2)])
     starts = []
     for k in tried_symmetries(symmetries, keep_orientation, only):
-        ob = Objective(coarse1, apply_symmetry(coarse2, k))
-        q2 = ob.second_on_first_grid()
-        candidates = [kabsch(ob.best_rotation_covariance(ob.identity)), *rotations]
-        seen = {}
-        results = [
-            dp_surface_min(
-                ob.q1, q2, ob.r, ob.r, ob.t, window=window, rotation=rotation, max_rounds=SEARCH_DP_ROUNDS, seen=seen
-            )
-            for rotation in candidates
-        ]
-        for result in sorted(results, key=lambda x: x.energy):
-            h = ob.identity.copy()
-            h[..., 0] = result.gamma[:, None]
-            residual = ob.residual(result.rotation, h)
-            mirrored = residual.mirrored
-            if mirrored and any(s.symmetry == k for s in starts):
-                continue  # one mirrored record per symmetry: its best
-            energy = _after_t_pass(ob, result.rotation, h, window)
-            starts.append(Start(k, result.rotation, energy, mirrored, residual.plus))
-            if not mirrored:
-                break
+        starts += _symmetry_starts(Objective(coarse1, apply_symmetry(coarse2, k)), k, rotations, window)
     return sorted(starts, key=lambda s: s.energy)
+
+
+def _symmetry_starts(ob: Objective, k: int, rotations: np.ndarray, window: int) -> list[Start]:
+    """The starts of symmetry ``k`` (``ob`` the coarse pair under it): a DP pass along r from Kabsch at the identity
+    and from each of ``rotations``; the best whose match is not mirrored, and before it the best overall when that
+    one is mirrored, each ranked after the pass along t (:func:`_after_t_pass`)."""
+    q2 = ob.second_on_first_grid()
+    candidates = [kabsch(ob.best_rotation_covariance(ob.identity)), *rotations]
+    seen = {}
+    results = [
+        dp_surface_min(
+            ob.q1, q2, ob.r, ob.r, ob.t, window=window, rotation=rotation, max_rounds=SEARCH_DP_ROUNDS, seen=seen
+        )
+        for rotation in candidates
+    ]
+    starts = []
+    for result in sorted(results, key=lambda x: x.energy):
+        h = ob.identity.copy()
+        h[..., 0] = result.gamma[:, None]
+        residual = ob.residual(result.rotation, h)
+        if residual.mirrored and starts:
+            continue  # one mirrored record per symmetry: its best
+        energy = _after_t_pass(ob, result.rotation, h, window)
+        starts.append(Start(k, result.rotation, energy, residual.mirrored, residual.plus))
+        if not residual.mirrored:
+            break
+    return starts
 
 
 def _after_t_pass(objective: Objective, rotation: np.ndarray, h: np.ndarray, window: int) -> float:

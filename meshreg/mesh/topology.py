@@ -201,13 +201,7 @@ def prepare_disk(
     v, f = _checked_arrays(vertices, faces)
     given, report = f, []
     f = _drop_degenerate(v, f, cleanup, report)
-    aliases, pieces = _weld_pieces(v, f) if cleanup else (None, 0)
-    if aliases is not None:
-        f = aliases[f]
-        f = f[~_repeated_corner(f)]
-        welded = int(np.sum(aliases != np.arange(len(v))))
-        how = f"the mesh came in {pieces} pieces" if pieces > 1 else "a seam cut into the surface"
-        report.append(f"welded {welded} coincident vertices ({how})")
+    f, aliases = _welded(v, f, cleanup, report)
     edges = _edges(f)  # recomputed only when a step changes the faces
     f, edges = _unchanged_or_new(_consistent_orientation(f, cleanup, report, edges), f, edges)
     f, edges = _unchanged_or_new(_unpinched(f, cleanup, report, edges), f, edges)
@@ -223,6 +217,26 @@ def prepare_disk(
         kept, ears = _without_ears(v, f, report, edges)
         f, edges = _unchanged_or_new(kept, f, edges)
         _kept_enough(v, given, len(f) - rim, report)
+    return _disk(v, f, edges, n, ears, report, aliases)
+
+
+def _welded(v: np.ndarray, f: np.ndarray, cleanup: bool, report: list) -> tuple[np.ndarray, np.ndarray | None]:
+    """With ``cleanup``, the faces with coincident vertices welded where :func:`_weld_pieces` welds them (a mesh in
+    pieces, or a seam cut into one piece), and each vertex's representative (None: nothing welded)."""
+    aliases, pieces = _weld_pieces(v, f) if cleanup else (None, 0)
+    if aliases is None:
+        return f, None
+    welded = int(np.sum(aliases != np.arange(len(v))))
+    how = f"the mesh came in {pieces} pieces" if pieces > 1 else "a seam cut into the surface"
+    report.append(f"welded {welded} coincident vertices ({how})")
+    f = aliases[f]
+    return f[~_repeated_corner(f)], aliases
+
+
+def _disk(v, f, edges, n: int, ears: np.ndarray, report: list, aliases) -> DiskMesh:
+    """The DiskMesh of cleaned faces ``f`` (edge table ``edges``) over ``v`` (the ``n`` input vertices first, then
+    hole-filling ones): unreferenced vertices dropped (reported), the rest renumbered in order, the removed ``ears``'
+    apexes kept as feet."""
     used = _used_vertices(f, len(v))
     original = used[used < n]
     if len(original) < n:
