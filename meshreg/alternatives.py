@@ -122,7 +122,8 @@ def find_alternatives(
     Returns
     -------
     list of Alternative
-        Sorted by E; one per correspondence (a twin reached from both surfaces' symmetries is listed once).
+        Sorted by E; one per symmetry of the square (what ``Options.symmetry`` can pin: of two twins under one
+        symmetry, the lower E).
     """
     objective = chosen.objective
     h = symmetry_map(symmetry, chosen.h)  # the answer's h, the symmetry included

@@ -23,9 +23,9 @@ Modes (a table, :data:`SOLVE`, of functions each returning a :class:`~meshreg.sc
     one that a symmetry of either surface allows are listed in ``result.alternatives``
     (:mod:`meshreg.alternatives`).
 
-In every mode but "dp", an answer that fits the normals of one shape while its points are still apart (a nearly
-flat sheet, whose E hardly changes as h slides) is refined once more with tighter stopping rules
-(:mod:`meshreg.stalled`).
+On grids (and meshes outside the bending path) in every mode but "dp", with ``refine="nodes"``, an answer that
+fits the normals of one shape while its points are still apart (a nearly flat sheet, whose E hardly changes as h
+slides) is refined once more with tighter stopping rules (:mod:`meshreg.stalled`).
 
 The descent and refinement schedule is in :mod:`meshreg.schedule`; ``refine="none", solver="gradient",
 smoothing=(), start_basis=5`` is the paper's procedure as published (Bernal & Lawrence, Section 4, Simplified

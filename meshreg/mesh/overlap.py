@@ -227,7 +227,8 @@ class Clipped:
 
 def clip(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray) -> Clipped:
     """Cut a triangle mesh along the zero line of ``values`` (n,) (linear in each triangle) and keep the part where
-    they are >= 0: triangles wholly there kept, those across the line split, the rest dropped."""
+    they are >= 0: triangles wholly there (with at least one corner above 0) kept, those across the line split, the
+    rest dropped, also those with every corner at 0 (which :func:`area_fraction` counts as inside)."""
     n = len(vertices)
     pos = values > 0
     neg = values < 0
