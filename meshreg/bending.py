@@ -86,6 +86,7 @@ def register_bending(
     callback: Progress | None = None,
     symmetry: int | None = None,
     finest: float = 0.0,
+    scaled: bool = True,
 ) -> Registration:
     """Register two grid surfaces (two meshes on their squares) from their parametrizations' own correspondence,
     descending E_w (see the module's docstring).
@@ -104,6 +105,9 @@ def register_bending(
         Refinement levels finer than this (side lengths of the square) are not run (see
         :class:`~meshreg.schedule.Descent`): for meshes, ``advanced.refine_triangles`` times their typical edge
         length on the square (:func:`meshreg.mesh.harmonic.edge_length`). Default 0: every level.
+    scaled : bool
+        The descent's E_w fits a scale per cell besides its rotation (default), or rotations only: for a pair that a
+        rigid pose fits (:class:`~meshreg.local_rotation.LocalObjective`).
 
     Returns
     -------
@@ -125,7 +129,16 @@ def register_bending(
     window = descent_window(first, options.bend_window)
 
     def descend(k: int) -> BentRun:
-        return _descend(first, second, area, k, window, options, finest, Log(callback, timings))
+        return _descend(
+            first,
+            second,
+            area,
+            k,
+            partial(LocalObjective, window=window, scaled=scaled),
+            options,
+            finest,
+            Log(callback, timings),
+        )
 
     chosen, runs = _unmirrored(close, spare, descend)
     k, plain = chosen.symmetry, chosen.objective
@@ -137,7 +150,7 @@ def register_bending(
             )
     h = symmetry_map(k, chosen.h)
     timings["total"] = time.perf_counter() - start
-    params = _params(options, chosen, runs, ranked, window, first, second)
+    params = {**_params(options, chosen, runs, ranked, window, first, second), "bend_scaled": scaled}
     return Registration(
         rotation=chosen.rotation,
         h=h,
@@ -214,10 +227,10 @@ class BentRun:
     log: Log
 
 
-def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
-    """E_w descended from h = the k-th symmetry of the square."""
+def _descend(first, second, area, k, make, options, finest, log) -> BentRun:
+    """E_w (``make``: the LocalObjective of two grids and the area) descended from h = the k-th symmetry of the
+    square."""
     copy = apply_symmetry(second, k)
-    make = partial(LocalObjective, window=window)
     objective = make(first, copy, area)
     work, nodes = work_objective(objective, first, copy, area, make=make)
     drive = Descent(objective, options, work, nodes, finest)
