@@ -50,6 +50,11 @@ CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction
 # remeshed copy (true twins), 0.096 and more on the folded relief sheet (a flat square's symmetries, not the fold's)
 TWIN_MARGIN = 0.05
 WINDOW_CELLS = 4.0  # the descent's windows are at least this many grid cells wide (a rotation is fitted in each)
+# a pair whose parametrizations' own correspondence fits the points within this coordinate residual (area 1) is one
+# unbent surface: its E_w fits rotations only. With a scale per cell such pairs came back 1.5-2 times worse (random
+# relief sheets remeshed and moved rigidly: median errors 0.0002-0.0019 of the diameter -> 0.0003-0.0030); bent
+# pairs need the scales (the benchmark's roll, fold, stretch and face pairs)
+RIGID_FIT_RESIDUAL = 0.01
 
 
 def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
@@ -86,7 +91,6 @@ def register_bending(
     callback: Progress | None = None,
     symmetry: int | None = None,
     finest: float = 0.0,
-    scaled: bool = True,
 ) -> Registration:
     """Register two grid surfaces (two meshes on their squares) from their parametrizations' own correspondence,
     descending E_w (see the module's docstring).
@@ -105,9 +109,6 @@ def register_bending(
         Refinement levels finer than this (side lengths of the square) are not run (see
         :class:`~meshreg.schedule.Descent`): for meshes, ``advanced.refine_triangles`` times their typical edge
         length on the square (:func:`meshreg.mesh.harmonic.edge_length`). Default 0: every level.
-    scaled : bool
-        The descent's E_w fits a scale per cell besides its rotation (default), or rotations only: for a pair that a
-        rigid pose fits (:class:`~meshreg.local_rotation.LocalObjective`).
 
     Returns
     -------
@@ -129,16 +130,7 @@ def register_bending(
     window = descent_window(first, options.bend_window)
 
     def descend(k: int) -> BentRun:
-        return _descend(
-            first,
-            second,
-            area,
-            k,
-            partial(LocalObjective, window=window, scaled=scaled),
-            options,
-            finest,
-            Log(callback, timings),
-        )
+        return _descend(first, second, area, k, window, options, finest, Log(callback, timings))
 
     chosen, runs = _unmirrored(close, spare, descend)
     k, plain = chosen.symmetry, chosen.objective
@@ -150,7 +142,7 @@ def register_bending(
             )
     h = symmetry_map(k, chosen.h)
     timings["total"] = time.perf_counter() - start
-    params = {**_params(options, chosen, runs, ranked, window, first, second), "bend_scaled": scaled}
+    params = _params(options, chosen, runs, ranked, window, first, second)
     return Registration(
         rotation=chosen.rotation,
         h=h,
@@ -177,6 +169,8 @@ def _params(options: Options, chosen, runs, ranked, window: float, first: GridSu
         **options.as_dict(),
         "bend_energy": chosen.bend_energy,
         "bend_window_used": window,
+        "bend_fit_residual": chosen.fit_residual,
+        "bend_scaled": chosen.scaled,
         "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
         "mirror": mirror_record(*_mirror_starts(ranked, chosen.symmetry), chosen.residual.plus),
         "starts": [
@@ -225,17 +219,23 @@ class BentRun:
     bend_energy: float
     residual: Residual
     log: Log
+    fit_residual: float  # the coordinate residual at h = the symmetry (the parametrizations' correspondence)
+    scaled: bool  # whether E_w fitted a scale per cell (:func:`_descend`)
 
 
-def _descend(first, second, area, k, make, options, finest, log) -> BentRun:
-    """E_w (``make``: the LocalObjective of two grids and the area) descended from h = the k-th symmetry of the
-    square."""
+def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
+    """E_w descended from h = the k-th symmetry of the square: with a scale per cell, unless the parametrizations'
+    own correspondence already fits the points (coordinate residual at most RIGID_FIT_RESIDUAL: one unbent surface),
+    where E_w fits rotations only (:class:`~meshreg.local_rotation.LocalObjective`)."""
     copy = apply_symmetry(second, k)
+    plain = Objective(first, copy, area)
+    fit = plain.judge(plain.identity)[2].plus
+    make = partial(LocalObjective, window=window, scaled=fit > RIGID_FIT_RESIDUAL)
     objective = make(first, copy, area)
     work, nodes = work_objective(objective, first, copy, area, make=make)
     drive = Descent(objective, options, work, nodes, finest)
     rotation, h = drive.descend(np.eye(3), drive.restrict(objective.identity), [options.basis], log)
     rotation, h = drive.polish(rotation, h, log)
-    plain = Objective(first, copy, area)
     rotation, energy, residual = plain.judge(h)
-    return BentRun(k, plain, rotation, h, float(energy), float(objective.energy(rotation, h)), residual, log)
+    bend_energy = float(objective.energy(rotation, h))
+    return BentRun(k, plain, rotation, h, float(energy), bend_energy, residual, log, fit, fit > RIGID_FIT_RESIDUAL)

@@ -216,7 +216,7 @@ class LocalObjective(Objective):
     ignores it and :meth:`rotation_jacobian` is zero.
 
     With ``scaled`` False it is the rotations-only E_w (the ranking's) with its exact derivative (the fixed target
-    of :func:`fixed_target`): a pair that a rigid pose already fits has no bending or stretch for a scale to absorb,
+    of :func:`fixed_target`): one unbent surface has no bending or stretch for a scale to absorb,
     and there the rotations-only descent was more accurate (random relief sheets remeshed at 800-3000 vertices,
     rotated and scaled: median errors 0.0003-0.0030 of the diameter with scales against 0.0002-0.0019 without).
 

@@ -17,7 +17,7 @@ from ..result import Registration
 from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap, edge_length
-from .overlap import TIGHT, rigid_overlap, warped_overlap
+from .overlap import rigid_overlap, warped_overlap
 from .partial import register_overlap
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk
@@ -122,8 +122,7 @@ def register_meshes(
         mapped = None if found.regime == "rigid" else squares.result()
     if found.regime == "rigid":
         return register_overlap(disks[0], disks[1], found, n_input, options, infos)
-    rigid_fit = found.rms["pose"] <= TIGHT * found.edge  # a rigid pose fits: no bending for the E_w to absorb
-    whole = register_disks(disks, maps, n_input, infos, options, callback, mapped, rigid_fit)
+    whole = register_disks(disks, maps, n_input, infos, options, callback, mapped)
     if found.regime == "deformed":
         matches = whole.result.first.at_uv(whole.matched_uv2)[0]
         found = warped_overlap(disks[0], disks[1], found, matches)
@@ -182,7 +181,6 @@ def register_disks(
     options: Options,
     callback,
     squares: SquareMaps | None = None,
-    rigid_fit: bool = False,
 ) -> MeshRegistration:
     """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners and
     harmonic maps (:func:`square_maps`), grids, :func:`meshreg.bending.register_bending` or
@@ -199,9 +197,6 @@ def register_disks(
         The preparation report per mesh ("first", "second"), completed here.
     squares : SquareMaps, optional
         :func:`square_maps` of the disks when already computed (else computed here).
-    rigid_fit : bool
-        The overlap check found a rigid pose that fits the meshes (RMS within ``overlap.TIGHT`` edges): the bending
-        path's E_w then fits rotations only, no scales (:class:`~meshreg.local_rotation.LocalObjective`).
     """
     infos = {name: dict(info) for name, info in infos.items()}
     squares = square_maps(disks, maps, options) if squares is None else squares
@@ -221,7 +216,7 @@ def register_disks(
     if options.mode == "auto" and options.bend_window > 0:
         edges = np.mean([edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)])
         finest = options.advanced.refine_triangles * edges
-        result = register_bending(grids[0], grids[1], options, callback, pinned, finest, scaled=not rigid_fit)
+        result = register_bending(grids[0], grids[1], options, callback, pinned, finest)
     else:
         result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
