@@ -220,7 +220,18 @@ class BentRun:
     residual: Residual
     log: Log
     fit_residual: float  # the coordinate residual at h = the symmetry (the parametrizations' correspondence)
-    scaled: bool  # whether E_w fitted a scale per cell (:func:`_descend`)
+
+    @property
+    def scaled(self) -> bool:
+        """Whether E_w fitted a scale per cell (:func:`_descend`): the parametrizations' correspondence did not
+        fit the points."""
+        return _bent(self.fit_residual)
+
+
+def _bent(fit_residual: float) -> bool:
+    """Whether a pair whose parametrizations' correspondence has this coordinate residual is bent (above
+    RIGID_FIT_RESIDUAL): its E_w then fits a scale per cell."""
+    return fit_residual > RIGID_FIT_RESIDUAL
 
 
 def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
@@ -230,7 +241,7 @@ def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
     copy = apply_symmetry(second, k)
     plain = Objective(first, copy, area)
     fit = plain.judge(plain.identity)[2].plus
-    make = partial(LocalObjective, window=window, scaled=fit > RIGID_FIT_RESIDUAL)
+    make = partial(LocalObjective, window=window, scaled=_bent(fit))
     objective = make(first, copy, area)
     work, nodes = work_objective(objective, first, copy, area, make=make)
     drive = Descent(objective, options, work, nodes, finest)
@@ -238,4 +249,4 @@ def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
     rotation, h = drive.polish(rotation, h, log)
     rotation, energy, residual = plain.judge(h)
     bend_energy = float(objective.energy(rotation, h))
-    return BentRun(k, plain, rotation, h, float(energy), bend_energy, residual, log, fit, fit > RIGID_FIT_RESIDUAL)
+    return BentRun(k, plain, rotation, h, float(energy), bend_energy, residual, log, fit)

@@ -170,8 +170,7 @@ def local_similarities(q1: np.ndarray, q2: np.ndarray, win: Window, wide: Window
     each cell's best rotation in the window ``win`` around it, and the square root of the area ratio in the window
     ``wide`` around it (SCALE_WIDTH times wider)."""
     w = win.weights
-    a = np.einsum("ija,ijb->ijab", q2, q1) * (w / win.kappa)[..., None, None]
-    rotations, _ = polar_rotations(win.apply(a))
+    rotations = local_rotations(q1, q2, win)[1]
     area1, area2 = (wide.apply(np.sum(q * q, axis=-1) * (w / wide.kappa)) for q in (q1, q2))
     scale = np.sqrt(area2 / np.where(area1 > 0, area1, np.inf))
     similarities = rotations * scale[..., None, None]
