@@ -103,10 +103,9 @@ class Overlap:
         The pose of the second mesh in the first's frame.
     positions : ndarray, shape (n2, 3)
         The second disk's vertices in the first's frame: posed, and bent by the warp in the "elastic" regime.
-    edge : float
-        The pair's edge length (the coarser mesh's median edge, first's units).
     edges : tuple of float
-        Each mesh's median edge (first's units: the second's at the pose's scale).
+        Each mesh's median edge (first's units: the second's at the pose's scale); :attr:`edge`, the pair's edge
+        length, is the larger.
     rms : dict
         RMS distance over the overlap of the pose ("pose"), of the pose moved along its weakest motion when it was
         judged (:func:`probed_rms`, "probe") and, when it was tried, of the warp ("warp").
@@ -127,14 +126,18 @@ class Overlap:
     second: Side
     alignment: Alignment
     positions: np.ndarray
-    edge: float
+    edges: tuple
     rms: dict = field(default_factory=dict)
     coincide: float = float("nan")
     slide: float = float("nan")
     seconds: float = 0.0
     reason: str = ""
     target: Surface | None = field(default=None, repr=False, compare=False)
-    edges: tuple = (float("nan"), float("nan"))
+
+    @property
+    def edge(self) -> float:
+        """The pair's edge length: the coarser mesh's median edge (first's units)."""
+        return max(self.edges)
 
     def summary(self) -> dict:
         """The overlap as plain values (for ``result.info``)."""
@@ -471,9 +474,7 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
     else:
         regime, reason = "deformed", ""
     seconds = time.perf_counter() - start
-    return Overlap(
-        regime, one, two, alignment, posed.vertices, edge, spread, coincide, slid, seconds, reason, s1, edges
-    )
+    return Overlap(regime, one, two, alignment, posed.vertices, edges, spread, coincide, slid, seconds, reason, s1)
 
 
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
@@ -499,7 +500,8 @@ def same_region(first: Surface, second: Surface, tolerance: float, start: float 
     if alignment is None:
         return None
     matrix, scale = alignment.matrix, alignment.scale
-    edge = max(first.edge, scale * second.edge)
+    edges = (first.edge, scale * second.edge)
+    edge = max(edges)
     points1, points2 = (area_sample(s, QUICK_SAMPLE, seed) for seed, s in enumerate((first, second)))
     points2 = transform_points(matrix, points2)
     signed1, distance1 = (
@@ -514,7 +516,7 @@ def same_region(first: Surface, second: Surface, tolerance: float, start: float 
     quick = Alignment(matrix, alignment.rms, alignment.scores, "principal axes (quick check)")
     slid = slide(first, np.ones(len(first.vertices), dtype=bool), rms) / edge  # reported, as by rigid_overlap
     seconds = time.perf_counter() - start
-    return Overlap("full", one, two, quick, posed, edge, {"pose": rms}, coincide, slid, seconds, "", first)
+    return Overlap("full", one, two, quick, posed, edges, {"pose": rms}, coincide, slid, seconds, "", first)
 
 
 def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray) -> Overlap:
@@ -554,9 +556,7 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
         slid = float("nan")
     seconds = posed.seconds + time.perf_counter() - start
     return Overlap(
-        regime,
-        *(one, two, posed.alignment, positions, posed.edge, rms_all, coincide, slid, seconds, reason, target),
-        posed.edges,
+        regime, one, two, posed.alignment, positions, posed.edges, rms_all, coincide, slid, seconds, reason, target
     )
 
 
