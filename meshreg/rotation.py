@@ -33,14 +33,8 @@ def kabsch(h: np.ndarray) -> np.ndarray:
     >>> bool(np.allclose(R, P))
     True
     """
-    u, _, vt = np.linalg.svd(h)
-    v = vt.T
-    if np.linalg.det(v @ u.T) < 0:
-        v = v * _FLIP_LAST
-    return v @ u.T
-
-
-_FLIP_LAST = np.array([1.0, 1.0, -1.0])  # V diag(1, 1, -1), column by column
+    u, vt = _proper_factors(h)
+    return vt.T @ u.T
 
 
 def kabsch_stack(h: np.ndarray) -> np.ndarray:
@@ -53,11 +47,17 @@ def kabsch_stack(h: np.ndarray) -> np.ndarray:
     >>> bool(np.allclose(kabsch_stack(h), [kabsch(m) for m in h]))
     True
     """
+    u, vt = _proper_factors(h)
+    return np.einsum("nji,nkj->nik", vt, u)  # V U^T by einsum: matmul rounds differently, and the callers' bits stay
+
+
+def _proper_factors(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """U and V^T of the SVD ``H = U S V^T`` of a matrix or a stack of them (..., 3, 3), the last row of V^T negated
+    where ``det(V U^T) < 0``: ``V^T U^T`` is then the rotation (never a reflection) that maximizes trace(R H)."""
     u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("nji,nkj->nik", vt, u)))
-    d[d == 0] = 1.0
-    vt[:, 2, :] *= d[:, None]
-    return np.einsum("nji,nkj->nik", vt, u)
+    reflection = np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)) < 0
+    vt[..., 2, :] *= np.where(reflection, -1.0, 1.0)[..., None]
+    return u, vt
 
 
 def angle_between(r1: np.ndarray, r2: np.ndarray) -> float | np.ndarray:
