@@ -348,15 +348,19 @@ def slide(surface: Surface, keep: np.ndarray, rms: float) -> float:
     eigenvalue of the point-to-plane normal matrix (:func:`_normal_matrix`: a turn is measured by how far it moves
     points at the RMS radius). Large when the relief leaves a motion free (a turn about a surface of revolution, a
     shift along a ridge, any motion in the plane of a flat sheet); 0 for an exact fit."""
-    system = _normal_matrix(surface, keep)
+    return _slide(_normal_matrix(surface, keep), rms)
+
+
+def _slide(system, rms: float) -> float:
+    """:func:`slide` from the normal matrix of the vertices (:func:`_normal_matrix`; None: infinite)."""
     if system is None:
         return np.inf
     weakest = float(np.linalg.eigvalsh(system[0])[0])
     return float(rms / np.sqrt(weakest)) if weakest > 0 else np.inf
 
 
-def probed_rms(surface: Surface, keep: np.ndarray, other: Surface, distance: float) -> float:
-    """The RMS distance to ``other`` of a surface's vertices ``keep`` moved rigidly along their weakest motion.
+def probed_rms(points: np.ndarray, system, other: Surface, distance: float) -> float:
+    """The RMS distance to ``other`` of a surface's vertices moved rigidly along their weakest motion.
 
     The motion is the screw motion of the eigenvector of :func:`slide`'s smallest eigenvalue, until the farthest
     vertex has moved ``distance`` (halved, up to PROBE_HALVINGS times, while fewer than half the vertices stay inside
@@ -365,9 +369,10 @@ def probed_rms(surface: Surface, keep: np.ndarray, other: Surface, distance: flo
 
     Parameters
     ----------
-    surface : Surface
-    keep : ndarray of bool, shape (n,)
-        The vertices over the overlap.
+    points : ndarray, shape (k, 3)
+        The surface's vertices over the overlap.
+    system : tuple or None
+        Their point-to-plane normal matrix, centre and radius (:func:`_normal_matrix`, as :func:`slide` uses it).
     other : Surface
         The other mesh, posed.
     distance : float
@@ -379,12 +384,11 @@ def probed_rms(surface: Surface, keep: np.ndarray, other: Surface, distance: flo
         The RMS over the moved vertices inside ``other``'s rim; NaN when the probe cannot tell (fewer than 6
         vertices, no motion, or too few inside at every distance tried).
     """
-    system = _normal_matrix(surface, keep)
     if system is None:
         return np.nan
     matrix, centre, radius = system
     turn, shift = np.linalg.eigh(matrix)[1][:, 0].reshape(2, 3)
-    offsets = surface.vertices[keep] - centre
+    offsets = points - centre
     reach = float(np.linalg.norm(np.cross(turn, offsets / radius) + shift, axis=1).max()) * radius
     if reach <= 0:
         return np.nan
@@ -462,11 +466,13 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
     edge = max(edges)
     posed = s2.moved(alignment.matrix)
     one, two, rms, coincide = _sides(first, second, s1, posed, edge)
-    slid, spread = slide(s1, one.signed >= 0, rms) / edge, {"pose": rms}
+    inside = one.signed >= 0
+    system = _normal_matrix(s1, inside)  # for the slide and the probe
+    slid, spread = _slide(system, rms) / edge, {"pose": rms}
     if rms <= TIGHT * edge:
         regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid, edges)
         if regime == "rigid":
-            spread["probe"] = probed_rms(s1, one.signed >= 0, posed, PROBE * edge)
+            spread["probe"] = probed_rms(s1.vertices[inside], system, posed, PROBE * edge)
             # unpinned only when the probe shows it: NaN (a narrow overlap) leaves the verdict to the slide
             regime, reason = ("whole", UNPINNED) if spread["probe"] <= TIGHT * edge else ("rigid", "")
     elif _verdict("elastic", one, two, coincide, alignment.scale, slid, edges)[0] == "full":
