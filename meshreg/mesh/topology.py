@@ -201,8 +201,9 @@ def prepare_disk(
     v, f = _checked_arrays(vertices, faces)
     given, report = f, []
     f = _drop_degenerate(v, f, cleanup, report)
-    f, aliases = _welded(v, f, cleanup, report)
     edges = _edges(f)  # recomputed only when a step changes the faces
+    welded, aliases = _welded(v, f, cleanup, report, edges)
+    f, edges = _unchanged_or_new(welded, f, edges)
     f, edges = _unchanged_or_new(_consistent_orientation(f, cleanup, report, edges), f, edges)
     f, edges = _unchanged_or_new(_unpinched(f, cleanup, report, edges), f, edges)
     n = len(v)
@@ -220,10 +221,13 @@ def prepare_disk(
     return _disk(v, f, edges, n, ears, report, aliases)
 
 
-def _welded(v: np.ndarray, f: np.ndarray, cleanup: bool, report: list) -> tuple[np.ndarray, np.ndarray | None]:
+def _welded(
+    v: np.ndarray, f: np.ndarray, cleanup: bool, report: list, edges: tuple
+) -> tuple[np.ndarray, np.ndarray | None]:
     """With ``cleanup``, the faces with coincident vertices welded where :func:`_weld_pieces` welds them (a mesh in
-    pieces, or a seam cut into one piece), and each vertex's representative (None: nothing welded)."""
-    aliases, pieces = _weld_pieces(v, f) if cleanup else (None, 0)
+    pieces, or a seam cut into one piece; ``edges``: :func:`_edges` of f), and each vertex's representative (None:
+    nothing welded, and f itself returned)."""
+    aliases, pieces = _weld_pieces(v, f, edges) if cleanup else (None, 0)
     if aliases is None:
         return f, None
     welded = int(np.sum(aliases != np.arange(len(v))))
@@ -453,14 +457,14 @@ def _single_loop(v: np.ndarray, f: np.ndarray, edges: tuple) -> list:
     return loops[0]
 
 
-def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
+def _weld_pieces(v, f, edges: tuple) -> tuple[np.ndarray | None, int]:
     """For a mesh in several pieces held together only by coincident vertices (a triangle soup, seams of an
     exporter): each vertex's representative (the first vertex at its position) and the number of pieces. A mesh in
-    one piece gets its coincident boundary vertices welded only when that leaves a disk (:func:`_seam_aliases`).
-    Else (None, pieces)."""
+    one piece gets its coincident boundary vertices welded only when that leaves a disk (:func:`_seam_aliases`;
+    ``edges``: :func:`_edges` of f). Else (None, pieces)."""
     pieces = face_components(f, len(v))[1]
     if pieces < 2:
-        return _seam_aliases(v, f), pieces
+        return _seam_aliases(v, f, edges), pieces
     _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
     aliases = first[inverse.ravel()]
     if np.all(aliases == np.arange(len(v))) or face_components(aliases[f], len(v))[1] >= pieces:
@@ -468,15 +472,15 @@ def _weld_pieces(v, f) -> tuple[np.ndarray | None, int]:
     return aliases, pieces
 
 
-def _seam_aliases(v, f) -> np.ndarray | None:
+def _seam_aliases(v, f, edges: tuple) -> np.ndarray | None:
     """Representatives of a one-piece mesh's coincident boundary vertices when welding them closes a slit without
     changing the surface's kind (an exporter's seam cut into the surface from its rim: welded, the loops are as many
     as before or fewer, none added, and the surface has genus 0: Euler characteristic 2 - loops; a hole elsewhere
     stays a hole for the cleanup to fill); None otherwise, so that a deliberate cut is kept (a cylinder cut open would
-    become an annulus, a sphere cut open a closed surface)."""
+    become an annulus, a sphere cut open a closed surface). ``edges``: :func:`_edges` of f."""
     if len(f) == 0:
         return None
-    rim = np.unique(boundary_edges(f))
+    rim = np.unique(boundary_edges(f, edges))
     _, first, inverse = np.unique(v[rim], axis=0, return_index=True, return_inverse=True)
     if len(first) == len(rim):
         return None
@@ -484,9 +488,10 @@ def _seam_aliases(v, f) -> np.ndarray | None:
     aliases[rim] = rim[first[inverse.ravel()]]
     welded = aliases[f]
     welded = welded[~_repeated_corner(welded)]
-    counts = edge_table(welded)[3]
-    loops = len(boundary_sizes(welded))
-    if len(welded) < len(f) or np.any(counts > 2) or not 1 <= loops <= len(boundary_sizes(f)):
+    welded_edges = _edges(welded)
+    counts = welded_edges[3]
+    loops = len(boundary_sizes(welded, welded_edges))
+    if len(welded) < len(f) or np.any(counts > 2) or not 1 <= loops <= len(boundary_sizes(f, edges)):
         return None
     euler = len(np.unique(welded)) - len(counts) + len(welded)
     return aliases if euler == 2 - loops else None
@@ -543,13 +548,14 @@ def _orientation_flips(faces, edges) -> np.ndarray:
     return flips
 
 
-def boundary_sizes(faces) -> list[int]:
+def boundary_sizes(faces, edges: tuple | None = None) -> list[int]:
     """Edges of each boundary of a triangle mesh, largest first: its boundary edges (used by one triangle) grouped
-    into connected pieces. Works on raw meshes too (a boundary that touches itself counts as one piece)."""
+    into connected pieces. Works on raw meshes too (a boundary that touches itself counts as one piece). ``edges``:
+    :func:`_edges` of the faces, when known."""
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return []
-    edges = boundary_edges(f)
+    edges = boundary_edges(f, edges)
     if len(edges) == 0:
         return []
     n = int(f.max()) + 1
