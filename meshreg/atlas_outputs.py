@@ -123,7 +123,7 @@ def atlas_files(
     """``meshreg atlas``: the atlas of grid files and/or meshes, checkpointed in ``out/.checkpoint`` (resumed from
     there; removed when done) and written to ``out`` (see the module). ``scheduler`` is the address of a
     dask.distributed scheduler (default: a local process pool of ``jobs`` processes)."""
-    from .matrix_run import _client
+    from .matrix_run import scheduler_client
 
     files, out = [Path(f) for f in files], Path(out)
     missing = [str(f) for f in files if not f.is_file()]
@@ -140,8 +140,7 @@ def atlas_files(
     refuse_foreign(out, [f.relative_to(out) for f in written])
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / CHECKPOINT_DIR
-    client = _client(scheduler) if scheduler else None
-    try:
+    with scheduler_client(scheduler, f"finished registrations are kept in {checkpoint}") as client:
         result = atlas(
             files,
             options or ATLAS_OPTIONS,
@@ -152,12 +151,6 @@ def atlas_files(
             checkpoint=checkpoint,
             progress=progress,
         )
-    except KeyboardInterrupt as err:
-        err.add_note(f"finished registrations are kept in {checkpoint}; rerun the same command to resume")
-        raise
-    finally:
-        if client is not None:
-            client.close()
     written = WrittenAtlas(result, _replace_outputs(result, out))
     shutil.rmtree(checkpoint, ignore_errors=True)
     return written

@@ -3,6 +3,7 @@ resumed after an interruption and written all together or not at all."""
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -107,8 +108,7 @@ def matrix_files(
     finished = None if options.force or checkpoint.exists() else _finished(out, files, options)
     if finished is not None:
         return MatrixRun(finished, out, _figure(finished, figure_path) if plot else None, None, reused=True)
-    client = _client(scheduler) if scheduler else None
-    try:
+    with scheduler_client(scheduler, f"finished pairs are kept in {checkpoint}") as client:
         result = distance_matrix(
             files,
             options,
@@ -119,12 +119,6 @@ def matrix_files(
             retry_failed=retry_failed,
             preparing=preparing,
         )
-    except KeyboardInterrupt as err:
-        err.add_note(f"finished pairs are kept in {checkpoint}; rerun the same command to resume")
-        raise
-    finally:
-        if client is not None:
-            client.close()
     if len(result.failures) == len(result.names) * (len(result.names) - 1) // 2:
         remove_outputs(out.parent, [out.name, figure_path.name])
         return MatrixRun(result, None, None, checkpoint)
@@ -141,6 +135,22 @@ def matrix_files(
         return MatrixRun(result, out, figure, checkpoint)
     checkpoint.unlink(missing_ok=True)
     return MatrixRun(result, out, figure, None)
+
+
+@contextmanager
+def scheduler_client(scheduler: str | None, kept: str):
+    """A dask.distributed Client of the scheduler at ``scheduler`` (None without one) for the ``with`` block, closed
+    when it ends; a KeyboardInterrupt in it goes on with the note ``kept`` (where the finished work is) and how to
+    resume."""
+    client = _client(scheduler) if scheduler else None
+    try:
+        yield client
+    except KeyboardInterrupt as err:
+        err.add_note(f"{kept}; rerun the same command to resume")
+        raise
+    finally:
+        if client is not None:
+            client.close()
 
 
 def _client(scheduler: str):
