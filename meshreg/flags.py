@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .options import MODES, OVERLAPS, REFINEMENTS, SOLVERS, WEIGHTS, Advanced, Options
+from .options import MESH_BLUR_DEFAULT, MODES, OVERLAPS, REFINEMENTS, SOLVERS, WEIGHTS, Advanced, Options
 
 
 @dataclass(frozen=True)
@@ -100,6 +100,14 @@ FLAGS: tuple[Flag, ...] = (
         "grid nodes average the mesh sampled K times finer (default 3; 1 = point samples)",
         int,
         metavar="K",
+        group="meshes",
+    ),
+    Flag(
+        "--mesh-blur",
+        "mesh_blur",
+        f"blur both grids over S median edges of the coarser mesh (default {MESH_BLUR_DEFAULT}; 0 = off)",
+        float,
+        metavar="S",
         group="meshes",
     ),
     Flag(

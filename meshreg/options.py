@@ -36,6 +36,7 @@ WEIGHTS = ("mean-value", "cotangent")
 OVERLAPS = ("auto", "off")
 MAX_BASIS = 40  # KL beyond this gives 2 (KL + 2 KL^2) > 6000 fields: more than any grid here resolves
 MAX_WINDOW = 10_000
+MESH_BLUR_DEFAULT = 2.0  # Options.mesh_blur
 
 
 @dataclass(frozen=True)
@@ -321,6 +322,17 @@ class Options:
         finer than the grid (1: the mesh's point at the node). Default 3: point samples alias a scan's noise into
         E (a face-scan crop against a remeshed copy: E 0.026 at 101 x 101, 0.014 anti-aliased, where no further
         refinement went below 0.025).
+    mesh_blur : float
+        Meshes registered whole: both grids are blurred by a Gaussian whose standard deviation is this many median
+        edge lengths (on the square) of the coarser mesh (:func:`meshreg.mesh.resample.blur_grid`), when that is at
+        least half a grid spacing. Below the size of its triangles a mesh's normals are the facets of its
+        triangulation, not the surface's, and E matches two triangulations' facets rather than the surface: on
+        random triangulations of one terrain (150 to 8000 triangles) the answers were 0.08-2.2% of the size off
+        where the two maps to the square agreed within 0.1-0.35%, blurred 0.02-0.43%. In mode "auto" with
+        ``bend_window`` > 0 the blurred grids are registered only when the pair is one unbent surface (its maps'
+        own correspondence fits the points, :data:`meshreg.bending.RIGID_FIT_RESIDUAL`): blurring made bent pairs
+        worse. Default 2; 0 turns it off. The reported E is the registered grids' E; ``result.params`` records the
+        standard deviation used (``mesh_blur_sigma``, side lengths of the square; 0 when not blurred).
     cleanup : bool
         Repair meshes (holes, pieces, pinched vertices, ears) instead of refusing them. Default True.
     corners1, corners2 : tuple of 4 int or None
@@ -365,6 +377,7 @@ class Options:
     resolution: int = 101
     weights: str = "mean-value"
     antialias: int = 3
+    mesh_blur: float = MESH_BLUR_DEFAULT
     cleanup: bool = True
     corners1: tuple[int, int, int, int] | None = None
     corners2: tuple[int, int, int, int] | None = None
@@ -395,6 +408,7 @@ class Options:
             _integer("symmetry", self.symmetry, 0, 7)
             object.__setattr__(self, "symmetry", int(self.symmetry))
         _integer("antialias", self.antialias, 1, 16)
+        _number("mesh_blur", self.mesh_blur, 0.0, 100.0)
         _integer("resolution", self.resolution, 3, 100_000)
         _integer("corner_search", self.corner_search, 0, 1000)
         _number("bend_window", self.bend_window, 0.0, 1.0)

@@ -76,6 +76,7 @@ def register(
     resolution: int = DEFAULTS.resolution,
     weights: str = DEFAULTS.weights,
     antialias: int = DEFAULTS.antialias,
+    mesh_blur: float = DEFAULTS.mesh_blur,
     cleanup: bool = DEFAULTS.cleanup,
     corners1: tuple[int, int, int, int] | None = DEFAULTS.corners1,
     corners2: tuple[int, int, int, int] | None = DEFAULTS.corners2,
@@ -99,7 +100,7 @@ def register(
     symmetry : int, optional
         Pins the symmetry of the square applied to the second surface (an index of
         :data:`meshreg.search.SQUARE_SYMMETRIES`, as in ``result.symmetry`` and ``result.alternatives``).
-    resolution, weights, antialias, cleanup, corners1, corners2, corner_search, overlap, bend_window
+    resolution, weights, antialias, mesh_blur, cleanup, corners1, corners2, corner_search, overlap, bend_window
         How meshes are prepared and registered (cleanup, map to the square, resampling, overlap; the windows within
         which E_w lets them bend, :mod:`meshreg.bending`): see :class:`~.options.Options`.
     force : bool
@@ -146,6 +147,7 @@ def register(
         resolution=resolution,
         weights=weights,
         antialias=antialias,
+        mesh_blur=mesh_blur,
         cleanup=cleanup,
         corners1=corners1,
         corners2=corners2,

@@ -246,6 +246,7 @@ MESH_FLAG_CASES = {
         lambda r: r.params["bend_window"] == 0 and "bend_energy" not in r.params,
     ),
     "--antialias": (["--antialias", "1"], lambda r: r.params["antialias"] == 1),
+    "--mesh-blur": (["--mesh-blur", "0"], lambda r: r.params["mesh_blur"] == 0 and r.params["mesh_blur_sigma"] == 0),
     "--no-cleanup": (["--no-cleanup"], lambda r: r.params["cleanup"] is False),
     "--corner-search": (["--corner-search", "2"], lambda r: r.params["corner_search"] == 2),
     "--overlap": (["--overlap", "off"], lambda r: r.params["overlap"] == "off" and "overlap" not in r.info),

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from ..errors import InputError
 from ..grid import GridSurface
@@ -21,6 +22,7 @@ from .locate import barycentric, uv_triangle
 
 DEFAULT_GRID = 101
 DEFAULT_ANTIALIAS = 3  # as Options.antialias
+GAUSS_TAIL = 4.0  # blur_grid's kernel reaches this many standard deviations each way
 
 
 @numba.njit(cache=True)
@@ -117,12 +119,39 @@ def _point_samples(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, m: i
     return out
 
 
+def _odd_padded(v: np.ndarray, k: int) -> np.ndarray:
+    """``v`` with k samples added beyond each end of axis 0, reflected oddly through the end sample (2 v_0 - v_i)."""
+    return np.concatenate([2 * v[:1] - v[k:0:-1], v, 2 * v[-1:] - v[-2 : -k - 2 : -1]])
+
+
 def _hat_mean(values: np.ndarray, k: int, axis: int) -> np.ndarray:
     """Means of ``values`` along ``axis`` weighted by the hat function of half-width k samples (1, 2, .., k, ..,
     2, 1), the samples beyond each end reflected oddly through the end sample (2 v_0 - v_i): linear data is
     kept exactly, and the end samples are kept."""
     v = np.moveaxis(values, axis, 0)
     weights = np.r_[np.arange(1, k + 1), np.arange(k - 1, 0, -1)] / float(k * k)
-    padded = np.concatenate([2 * v[:1] - v[k - 1 : 0 : -1], v, 2 * v[-1:] - v[-2 : -k - 1 : -1]])
+    padded = _odd_padded(v, k - 1)
     out = sum(w * padded[i : i + len(v)] for i, w in enumerate(weights))
     return np.moveaxis(out, 0, axis)
+
+
+def blur_grid(grid: GridSurface, sigma: float) -> GridSurface:
+    """``grid`` blurred by a Gaussian of standard deviation ``sigma`` (nodes) along both axes, the nodes beyond
+    the sides reflected oddly through the side nodes (planes stay planes; the sides move only with the curve of
+    the surface across them). Its nodes' parameters are kept.
+
+    Examples
+    --------
+    >>> r = np.linspace(0, 1, 11)
+    >>> u, v = np.meshgrid(r, r, indexing="ij")
+    >>> plane = GridSurface.from_array(np.stack([u, v, 0.3 * u - v], -1), r, r)
+    >>> bool(np.allclose(blur_grid(plane, 2.0).points, plane.points))
+    True
+    """
+    points = grid.points
+    for axis in (0, 1):
+        v = np.moveaxis(points, axis, 0)
+        k = min(int(np.ceil(GAUSS_TAIL * sigma)), len(v) - 1)
+        v = gaussian_filter1d(_odd_padded(v, k), sigma, axis=0, mode="nearest")[k : k + len(v)]
+        points = np.moveaxis(v, 0, axis)
+    return GridSurface.from_array(points, grid.r, grid.t)
