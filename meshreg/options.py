@@ -323,16 +323,18 @@ class Options:
         E (a face-scan crop against a remeshed copy: E 0.026 at 101 x 101, 0.014 anti-aliased, where no further
         refinement went below 0.025).
     mesh_blur : float
-        Meshes registered whole: both grids are blurred by a Gaussian whose standard deviation is this many median
-        edge lengths (on the square) of the coarser mesh (:func:`meshreg.mesh.resample.blur_grid`), when that is at
-        least half a grid spacing. Below the size of its triangles a mesh's normals are the facets of its
-        triangulation, not the surface's, and E matches two triangulations' facets rather than the surface: on
-        random triangulations of one terrain (150 to 8000 triangles) the answers were 0.08-2.2% of the size off
-        where the two maps to the square agreed within 0.1-0.35%, blurred 0.02-0.43%. In mode "auto" with
-        ``bend_window`` > 0 the blurred grids are registered only when the pair is one unbent surface (its maps'
-        own correspondence fits the points, :data:`meshreg.bending.RIGID_FIT_RESIDUAL`): blurring made bent pairs
-        worse. Default 2; 0 turns it off. The reported E is the registered grids' E; ``result.params`` records the
-        standard deviation used (``mesh_blur_sigma``, side lengths of the square; 0 when not blurred).
+        Meshes in mode "auto" with ``bend_window`` > 0, registered whole, when the pair is one unbent surface (its
+        maps' own correspondence fits the points, :data:`meshreg.bending.RIGID_FIT_RESIDUAL`): both grids are
+        blurred by a Gaussian whose standard deviation is this many median edge lengths (on the square) of the
+        coarser mesh (:func:`meshreg.mesh.resample.blur_grid`), when that is at least half a grid spacing. Below
+        the size of its triangles a mesh's normals are the facets of its triangulation, not the surface's, and E
+        matches two triangulations' facets rather than the surface: on random triangulations of one terrain (150
+        to 8000 triangles) the answers were 0.08-2.2% of the size off where the two maps to the square agreed
+        within 0.1-0.35%, blurred 0.02-0.43%. Bent pairs, other modes, partial overlaps and collections are not
+        blurred (blurring made bent pairs worse, and it lowers the distance between different coarse shapes: 300
+        against 500 vertices, E about half the smooth shapes' E). Default 2; 0 turns it off. E is then the
+        blurred grids' E (near 0 for one surface, where the facets gave 1e-3 to 1e-2); ``result.params`` records
+        the standard deviation used (``mesh_blur_sigma``, side lengths of the square; 0 when not blurred).
     cleanup : bool
         Repair meshes (holes, pieces, pinched vertices, ears) instead of refusing them. Default True.
     corners1, corners2 : tuple of 4 int or None

@@ -19,7 +19,7 @@ from .corners import corner_positions
 from .harmonic import HarmonicMap, edge_length
 from .overlap import rigid_overlap, warped_overlap
 from .partial import register_overlap
-from .resample import blur_grid, resample_grid
+from .resample import blur_grid, blur_sigma, resample_grid
 from .topology import DiskMesh, prepare_disk
 
 # Meshes of together at least this many triangles get their maps to the square in a forked child while the overlap is
@@ -27,10 +27,6 @@ from .topology import DiskMesh, prepare_disk
 # 10k-triangle meshes 0.67 -> 0.64 (the child 0.07: hardly worth its copy-on-write faults), two 100k-triangle meshes
 # 1.6 -> 1.2-1.3 (the child 0.45-0.6).
 FORK_FACES = 50_000
-# Options.mesh_blur is applied when its standard deviation is at least this many grid spacings (below, the anti-aliased
-# resampling's own average over about one spacing is as wide): at the default mesh_blur on 101 x 101 grids, meshes of
-# more than about 150,000 vertices spread evenly over the surface are not blurred
-MIN_BLUR = 0.5
 
 
 @dataclass
@@ -217,17 +213,18 @@ def register_disks(
     edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
-    sigma = _blur_sigma(edges, options)
-    blurred = [blur_grid(g, sigma * (n - 1)) for g in grids] if sigma else None
     pinned = options.symmetry if symmetry is None else symmetry
+    sigma, used = 0.0, grids
     if options.mode == "auto" and options.bend_window > 0:
         finest = options.advanced.refine_triangles * np.mean(edges)
+        sigma = blur_sigma(max(edges), options.mesh_blur, n)
+        blurred = [blur_grid(g, sigma * (n - 1)) for g in grids] if sigma else None
         result = register_bending(grids[0], grids[1], options, callback, pinned, finest, blurred)
+        used = blurred if result.params["blurred"] else grids
     else:
-        result = register_grids(*(blurred or grids), options.replace(symmetry=pinned), callback)
-    used = blurred if blurred is not None and result.params.get("blurred", True) else grids
+        result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
-    params = {**result.params, "mesh_blur_sigma": sigma if used is blurred else 0.0}
+    params = {**result.params, "mesh_blur_sigma": sigma if used is not grids else 0.0}
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos), params=params)
     return MeshRegistration(
         disks[0],
@@ -238,14 +235,6 @@ def register_disks(
         result,
         infos,
     )
-
-
-def _blur_sigma(edges: list[float], options: Options) -> float:
-    """The standard deviation (side lengths of the square) of the Gaussian that blurs both grids: ``options.mesh_blur``
-    times the coarser mesh's median edge on the square (``edges``), or 0 when that is below MIN_BLUR grid spacings
-    (:func:`meshreg.mesh.resample.blur_grid`)."""
-    sigma = options.mesh_blur * max(edges)
-    return float(sigma) if sigma * (options.resolution - 1) >= MIN_BLUR else 0.0
 
 
 def json_ready(info: dict) -> dict:

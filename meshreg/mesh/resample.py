@@ -23,6 +23,10 @@ from .locate import barycentric, uv_triangle
 DEFAULT_GRID = 101
 DEFAULT_ANTIALIAS = 3  # as Options.antialias
 GAUSS_TAIL = 4.0  # blur_grid's kernel reaches this many standard deviations each way
+# Options.mesh_blur is applied when its standard deviation is at least this many grid spacings (below, the anti-aliased
+# resampling's own average over about one spacing is as wide): at the default mesh_blur on 101 x 101 grids, meshes of
+# more than about 150,000 vertices spread evenly over the surface are not blurred
+MIN_BLUR = 0.5
 
 
 @numba.njit(cache=True)
@@ -133,6 +137,15 @@ def _hat_mean(values: np.ndarray, k: int, axis: int) -> np.ndarray:
     padded = _odd_padded(v, k - 1)
     out = sum(w * padded[i : i + len(v)] for i, w in enumerate(weights))
     return np.moveaxis(out, 0, axis)
+
+
+def blur_sigma(edge: float, mesh_blur: float, nodes: int) -> float:
+    """The standard deviation (side lengths of the square) of the Gaussian that blurs the grids of a mesh whose
+    median edge on the square is ``edge`` (:func:`meshreg.mesh.harmonic.edge_length`; of a pair, the coarser one's):
+    ``mesh_blur`` (``Options.mesh_blur``) times it, or 0 when that is below MIN_BLUR spacings of a grid of ``nodes``
+    nodes per axis."""
+    sigma = mesh_blur * edge
+    return float(sigma) if sigma * (nodes - 1) >= MIN_BLUR else 0.0
 
 
 def blur_grid(grid: GridSurface, sigma: float) -> GridSurface:
