@@ -55,6 +55,14 @@ WINDOW_CELLS = 4.0  # the descent's windows are at least this many grid cells wi
 # relief sheets remeshed and moved rigidly: median errors 0.0002-0.0019 of the diameter -> 0.0003-0.0030); bent
 # pairs need the scales (the benchmark's roll, fold, stretch and face pairs)
 RIGID_FIT_RESIDUAL = 0.01
+# blurred grids (meshes: Options.mesh_blur) stand for a pair whose blurred parametrizations' own correspondence fits the
+# points within this coordinate residual (area 1): unbent pairs (random remeshed relief sheets 0.001-0.009; with vertex
+# noise of 0.3% of the size, which perturbs the maps, 0.011-0.015: errors 0.0095-0.0101 -> 0.0048-0.0087) and slight
+# bends (a face or terrain rolled 15-30 degrees: three of four more accurate, one 0.0024 -> 0.0027), not reliefs
+# rolled 45 degrees (0.032-0.048, which blurring made 10-25% worse), the face scan whose searched corners differ (0.030,
+# 4-6 times worse blurred: a blur on two squares that disagree is not one blur on the surface) nor the benchmark's bent
+# pairs (0.07-0.31, 1.3-3 times worse)
+BLUR_FIT_RESIDUAL = 0.02
 
 
 def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
@@ -131,7 +139,7 @@ def register_bending(
     spare = [k for k, _ in fair if k not in close]
     timings["search"] = time.perf_counter() - tic
     area = second.area()
-    use_blurred = blurred is not None and _unbent(first, second, area, close)
+    use_blurred = blurred is not None and _unbent(blurred[0], blurred[1], blurred[1].area(), close)
     if use_blurred:
         first, second = blurred
         area = second.area()
@@ -251,12 +259,10 @@ def _start_fit(first: GridSurface, second: GridSurface, area: float, k: int) -> 
 
 
 def _unbent(first: GridSurface, second: GridSurface, area: float, symmetries: list[int]) -> bool:
-    """Whether the parametrizations' own correspondence fits the points (coordinate residual at most
-    RIGID_FIT_RESIDUAL) under one of the ``symmetries``: the pair is one unbent surface, and blurred grids may
-    stand for it. Blurring over 2 median edges raised the errors of the benchmark's bent pairs (fit residuals
-    0.07-0.31, docs/bending.md) 1.3-3 times, and of held-out reliefs rolled 45 degrees (0.03-0.05) by 10-25%;
-    an anisotropic pair (150 x 6 against 6 x 150 cells, 0.025) would have gained (2.3% -> 1.0%)."""
-    return any(_start_fit(first, second, area, k)[2] <= RIGID_FIT_RESIDUAL for k in symmetries)
+    """Whether the parametrizations' own correspondence fits the points within BLUR_FIT_RESIDUAL under one of the
+    ``symmetries`` (given the blurred grids): one surface, unbent or slightly bent, whose two maps to the square
+    nearly agree, so that a blur on either square is nearly one blur on the surface."""
+    return any(_start_fit(first, second, area, k)[2] <= BLUR_FIT_RESIDUAL for k in symmetries)
 
 
 def _descend(first, second, area, k, window, options, finest, log) -> BentRun:

@@ -323,18 +323,19 @@ class Options:
         E (a face-scan crop against a remeshed copy: E 0.026 at 101 x 101, 0.014 anti-aliased, where no further
         refinement went below 0.025).
     mesh_blur : float
-        Meshes in mode "auto" with ``bend_window`` > 0, registered whole, when the pair is one unbent surface (its
-        maps' own correspondence fits the points, :data:`meshreg.bending.RIGID_FIT_RESIDUAL`): both grids are
-        blurred by a Gaussian whose standard deviation is this many median edge lengths (on the square) of the
-        coarser mesh (:func:`meshreg.mesh.resample.blur_grid`), when that is at least half a grid spacing. Below
-        the size of its triangles a mesh's normals are the facets of its triangulation, not the surface's, and E
-        matches two triangulations' facets rather than the surface: on random triangulations of one terrain (150
-        to 8000 triangles) the answers were 0.08-2.2% of the size off where the two maps to the square agreed
-        within 0.1-0.35%, blurred 0.02-0.43%. Bent pairs, other modes, partial overlaps and collections are not
-        blurred (blurring made bent pairs worse, and it lowers the distance between different coarse shapes: 300
-        against 500 vertices, E about half the smooth shapes' E). Default 2; 0 turns it off. E is then the
-        blurred grids' E (near 0 for one surface, where the facets gave 1e-3 to 1e-2); ``result.params`` records
-        the standard deviation used (``mesh_blur_sigma``, side lengths of the square; 0 when not blurred).
+        Meshes in mode "auto" with ``bend_window`` > 0, registered whole, when the two maps to the square nearly
+        agree (their own correspondence fits the blurred points within :data:`meshreg.bending.BLUR_FIT_RESIDUAL`:
+        one surface, unbent or slightly bent): both grids are blurred by a Gaussian whose standard deviation is
+        this many median edge lengths (on the square) of the coarser mesh (:func:`meshreg.mesh.resample.blur_grid`),
+        when that is at least half a grid spacing. Below the size of its triangles a mesh's normals are the facets
+        of its triangulation, not the surface's, and E matches two triangulations' facets rather than the surface:
+        on random triangulations of one terrain (150 to 8000 triangles) the answers were 0.08-2.2% of the size off
+        where the two maps agreed within 0.1-0.35%, blurred 0.02-0.43%. Bent pairs, pairs whose maps disagree,
+        other modes, partial overlaps and collections are not blurred (blurring made those worse, and it lowers the
+        distance between different coarse shapes: 300 against 500 vertices, E about half the smooth shapes' E).
+        Default 2; 0 turns it off. E is then the blurred grids' E (near 0 for one surface, where the facets gave
+        1e-3 to 1e-2); ``result.params`` records the standard deviation used (``mesh_blur_sigma``, side lengths of
+        the square; 0 when not blurred).
     cleanup : bool
         Repair meshes (holes, pieces, pinched vertices, ears) instead of refusing them. Default True.
     corners1, corners2 : tuple of 4 int or None
