@@ -299,3 +299,76 @@ def test_a_fine_crop_of_a_coarse_mesh_is_a_partial_overlap():
     turn = Rotation.from_euler("xyz", [35, -50, 120], degrees=True).as_matrix()
     found = rigid_overlap(_strip_grid(6, 6), _strip_grid(40, 40, 2.5, turn, x1=0.85))
     assert found.regime == "rigid" and found.first.fraction < 0.95
+
+
+def _bumps(seed: int, peak_to_peak: float):
+    """A unit sheet with 6 random Gaussian bumps (centres, widths and signed heights drawn from ``seed``), scaled
+    to ``peak_to_peak``: (u, v) -> (n, 3)."""
+    rng = np.random.default_rng(seed)
+    centres, widths, heights = rng.uniform(0.1, 0.9, (6, 2)), rng.uniform(0.1, 0.3, 6), rng.uniform(-1, 1, 6)
+
+    def height(p):
+        return sum(
+            a * np.exp(-np.sum((p - c) ** 2, axis=1) / (2 * w * w))
+            for a, c, w in zip(heights, centres, widths, strict=True)
+        )
+
+    u = np.linspace(0, 1, 101)
+    k = peak_to_peak / np.ptp(height(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2)))
+    return lambda u, v: np.c_[u, v, k * height(np.c_[u, v])]
+
+
+def test_the_warp_does_not_turn_off_a_nearly_flat_sheet():
+    """The linearized rigid step of the warp left the motions that a low-relief target does not pin almost free: a
+    relief sheet against its copy rolled 90 degrees, started 1.4 edges off from its true points, ended 18 edges off
+    (the first step turned it by about 100 degrees); with the turns cut back to WARP_TURN it settles on the sheet."""
+    from meshreg.mesh.warp import arap_warp
+    from meshreg.rotation import kabsch
+
+    p = deform.bent_pair("roll", 90.0, surface=_bumps(100, 0.18), n_first=900, n_second=1200)
+    target = Surface(*p.first)
+    rest = p.second[0] / 2.5
+    c0, c1 = rest.mean(axis=0), p.truth.mean(axis=0)
+    start = (rest - c0) @ kabsch((rest - c0).T @ (p.truth - c1)).T + c1
+    warped = arap_warp(start, p.second[1], target)
+    assert np.median(target.tree.query(warped)[0]) < target.edge
+
+
+def _rolled(relief: tuple, angle: float, sizes: tuple, seed: int, euler: tuple, scale: float) -> deform.Pair:
+    """A :func:`_bumps` sheet (``relief``: its seed, peak to peak) and a copy rolled ``angle`` degrees, of ``sizes``
+    random vertices, rotated (``euler``, xyz degrees), scaled and shifted (as /tmp/hov/pairs.py of the overlap
+    helper's sweep, which found these pairs)."""
+    rotation = Rotation.from_euler("xyz", euler, degrees=True).as_matrix()
+    roll = np.radians(angle)
+    n_first, n_second = sizes
+    sheet = _bumps(*relief)
+    return deform.sheet_pair(
+        "roll",
+        sheet,
+        deform=lambda x: deform.bend(x, roll),
+        n_first=n_first,
+        n_second=n_second,
+        seed=seed,
+        rotation=rotation,
+        scale=scale,
+    )
+
+
+def test_a_bent_copy_in_another_unit_is_not_a_crop_of_it():
+    """A low-relief sheet rolled 99 degrees and scaled 2.42: the pose (no rigid motion makes the meshes coincide)
+    took scale 1, and the warp laid the first on 9% of the second: an "elastic" partial overlap, most vertices
+    unmatched. Warped at the areas' ratio too, the pair fits 2.5 times closer as one surface in two units."""
+    p = _rolled((101, 0.0374), 99.42, (772, 1276), 1, (110.5, -51.634, 106.705), 2.422)
+    mr = register_meshes(p.first, p.second, Options(resolution=41))
+    overlap = mr.result.info["overlap"]
+    assert overlap["regime"] in ("whole", "full"), overlap["regime"]
+    error = p.errors(deform.matched_points(mr, len(p.second[0])))
+    assert np.median(error) < 0.02
+
+
+def test_a_warp_that_brings_little_of_either_mesh_together_is_not_a_partial_overlap():
+    """A whole sheet of relief 0.035 rolled 102 degrees: the warp (from a wrong whole registration) laid the meshes
+    side by side, a common region of none of either's area, judged "elastic" and trimmed to nothing (an error)."""
+    p = _rolled((148, 0.0349), 102.31, (1367, 828), 48, (31.608, -10.596, -58.304), 0.7227)
+    mr = register_meshes(p.first, p.second, Options())
+    assert mr.result.info["overlap"]["regime"] in ("whole", "full")

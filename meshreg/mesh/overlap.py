@@ -25,7 +25,7 @@ The verdict (:class:`Overlap`.regime):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -67,6 +67,22 @@ PINNED = 1.0
 PROBE = 10.0
 PROBE_HALVINGS = 3  # the probe's distance is halved up to this many times while the overlap is too narrow for it
 UNPINNED = "the relief does not pin the pose: the meshes slide along each other"
+# a partial overlap that the warp finds in the meshes' own units (scale 1), when their areas differ, stands only when
+# it fits this many times closer (RMS over the overlap in each warp's edge lengths) than the warp at the scale of the
+# areas' ratio, one surface in two units (the pose's scale is a guess when no rigid motion makes the meshes coincide).
+# Measured, RMS at the areas' ratio over RMS in the meshes' units: whole pairs posed at scale 1, 0.38 (a random relief
+# sheet rolled 90 degrees and scaled 2.5, whose first had been laid on 17% of the second), 0.40 (one rolled 99
+# degrees, scaled 2.42) and 0.64 (a sheet of relief 0.03 rolled 90 degrees, scaled 2.5); bent crops of low relief
+# (peak to peak 0.037 and 0.024) 0.85 and 1.0: registered whole (the first had been judged partial, 0.38 off; the
+# second was whole already, 0.38 off)
+UNITS_RATIO = 1.5
+# a partial overlap found by the warp needs at least one mesh with this fraction of its area in the common region: a
+# warp lays a patch of low relief anywhere on the other. Measured on whole random relief sheets bent 75-102 degrees
+# (peak to peak 0.026-0.035), "elastic" overlaps of 0.22 / 0.04, 0.08 / 0.02 and 0.00 / 0.00 (trimmed to nothing: an
+# error); the benchmark's bent face crops 0.90 / 0.93; bent crops of 86% and 50% of the same sweep warped in their own
+# units 0.67 / 0.57 and 0.43 / 0.87
+ELASTIC_OVERLAP = 0.3
+UNITS = "a deformed pair that fits as closely at the scale of its areas' ratio as in its own units: not judged"
 QUICK_SAMPLE = 2000  # points per mesh (spread evenly over its area) that judge the overlap in same_region
 
 
@@ -164,12 +180,12 @@ def parameters() -> dict:
 
     names = {
         align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH", "AXES_TURNS"),
-        warp: ("WARP_WEIGHTS", "WARP_ROUNDS", "WARP_TRIM", "WARP_TRIM_FLOOR"),
+        warp: ("WARP_WEIGHTS", "WARP_ROUNDS", "WARP_TRIM", "WARP_TRIM_FLOOR", "WARP_TURN"),
     }
     out = {name: getattr(module, name) for module, keys in names.items() for name in keys}
     local = ("SNAP", "BAND", "COINCIDE", "COINCIDE_ENOUGH", "TIGHT", "RIGID_RATIO", "FULL_TOLERANCE", "RIM_SLACK")
     local += ("SAME_SCALE",)
-    local += ("PINNED", "PROBE", "PROBE_HALVINGS", "QUICK_SAMPLE")
+    local += ("PINNED", "PROBE", "PROBE_HALVINGS", "QUICK_SAMPLE", "UNITS_RATIO", "ELASTIC_OVERLAP")
     out.update({name: globals()[name] for name in local})
     return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
 
@@ -444,6 +460,8 @@ def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, s
         return "full", ""
     if regime == "rigid" and not slid <= PINNED:
         return "whole", UNPINNED
+    if regime == "elastic" and max(one.fraction, two.fraction) < ELASTIC_OVERLAP:
+        return "whole", "the warp brings too little of either mesh into a common region"
     if regime == "elastic" and abs(np.log(scale)) > SAME_SCALE:
         return "whole", "a deformed pair at different scales: its overlap is not judged"
     return regime, ""
@@ -532,7 +550,10 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
     The warp starts from the pose that fits the second (at the scale of ``posed``) onto ``matches``, its vertices'
     matches on the first by the elastic registration of the whole meshes: that pose centres a bent mesh where a
     rigid fit settles on one side. When the warp does not bring the meshes much closer than the pose (RMS within
-    RIGID_RATIO), the pose stands (regime "rigid": noise, not deformation).
+    RIGID_RATIO), the pose stands (regime "rigid": noise, not deformation). The scale of a pose that no rigid motion
+    makes coincide is a guess, so a partial overlap in the meshes' own units (scale 1) stands only when it fits
+    clearly better than the warp at the scale of the meshes' areas' ratio, one surface in two units
+    (:func:`_by_units`; a partial verdict needs the meshes' own units, so the reverse is not tried).
 
     Parameters
     ----------
@@ -543,27 +564,52 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
         Per vertex of the second disk, its matched point on the first (NaN: none).
     """
     start = time.perf_counter()
+    found = _warped(first, second, posed, matches, posed.alignment.scale)
+    if posed.rms["pose"] <= RIGID_RATIO * found.rms["warp"]:
+        one, two, coincide = posed.first, posed.second, posed.coincide
+        regime, reason = _verdict("rigid", one, two, coincide, posed.alignment.scale, posed.slide, posed.edges)
+        found = replace(posed, regime=regime, reason=reason, rms=found.rms)
+    elif found.regime == "elastic" and (areas := _areas_scale(posed, second)) is not None:
+        found = _by_units(found, _warped(first, second, posed, matches, areas))
+    return replace(found, seconds=posed.seconds + time.perf_counter() - start)
+
+
+def _warped(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray, scale: float) -> Overlap:
+    """The overlap after the warp of the second disk at ``scale`` (see :func:`warped_overlap`), judged as elastic;
+    its alignment is the pose's at that scale (its centroid kept), its RMS ``{"pose", "warp"}``."""
     target = posed.target
-    scale = posed.alignment.scale
     rest = scale * second.vertices
     known = np.all(np.isfinite(matches), axis=1)
     c0, c1 = rest[known].mean(axis=0), matches[known].mean(axis=0)
     rotation = kabsch((rest[known] - c0).T @ (matches[known] - c1))
     warped = arap_warp((rest - c0) @ rotation.T + c1, second.faces, target)
-    one, two, rms, coincide = _sides(first, second, target, Surface(warped, second.faces), posed.edge)
+    ratio = scale / posed.alignment.scale
+    edges = (posed.edges[0], posed.edges[1] * ratio)
+    one, two, rms, coincide = _sides(first, second, target, Surface(warped, second.faces), max(edges))
+    regime, reason = _verdict("elastic", one, two, coincide, scale, float("nan"), edges)
+    matrix = posed.alignment.matrix.copy()
+    centre = second.vertices.mean(axis=0)
+    matrix[:3, :3] *= ratio
+    matrix[:3, 3] += posed.alignment.matrix[:3, :3] @ centre - matrix[:3, :3] @ centre
+    alignment = replace(posed.alignment, matrix=matrix)
     rms_all = {**posed.rms, "warp": rms}
-    slid = posed.slide
-    if posed.rms["pose"] <= RIGID_RATIO * rms:
-        one, two, coincide, positions = posed.first, posed.second, posed.coincide, posed.positions
-        regime, reason = _verdict("rigid", one, two, coincide, scale, slid, posed.edges)
-    else:
-        regime, reason = _verdict("elastic", one, two, coincide, scale, slid, posed.edges)
-        positions = warped
-        slid = float("nan")
-    seconds = posed.seconds + time.perf_counter() - start
-    return Overlap(
-        regime, one, two, posed.alignment, positions, posed.edges, rms_all, coincide, slid, seconds, reason, target
-    )
+    return Overlap(regime, one, two, alignment, warped, edges, rms_all, coincide, float("nan"), 0.0, reason, target)
+
+
+def _areas_scale(posed: Overlap, second: DiskMesh) -> float | None:
+    """The scale of one surface in two units: the square root of the meshes' areas' ratio (the other scale of
+    :func:`meshreg.mesh.align.align`); None when it is within SAME_SCALE of 1."""
+    areas = float(np.sqrt(posed.target.area / Surface(second.vertices, second.faces).area))
+    return None if abs(np.log(areas)) <= SAME_SCALE else areas
+
+
+def _by_units(units: Overlap, areas: Overlap) -> Overlap:
+    """Of a deformed pair's warps in its own units (``units``, regime "elastic") and at the scale of its areas' ratio
+    (``areas``), the partial overlap when its warp fits UNITS_RATIO times closer (RMS in each warp's edge lengths);
+    else ``areas`` (regime "whole", or "full" if it shows the meshes covering each other: registered whole)."""
+    if UNITS_RATIO * units.rms["warp"] / units.edge < areas.rms["warp"] / areas.edge:
+        return units
+    return areas if areas.regime == "full" else replace(areas, regime="whole", reason=UNITS)
 
 
 def trim(disk: DiskMesh, signed: np.ndarray) -> tuple[DiskMesh, sp.csr_matrix]:
