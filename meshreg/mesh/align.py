@@ -258,28 +258,32 @@ def _same_pose(poses: np.ndarray, pose: np.ndarray, voxel: float) -> np.ndarray:
     return (angle_between(poses[:, :3, :3], pose[:3, :3]) < 5.0) & near
 
 
-def rigid_step(x, n, p) -> np.ndarray:
+def rigid_step(x, n, p, scaled: bool = False) -> np.ndarray:
     """The small rigid motion (4 x 4) that best moves points x (k, 3) onto the planes through p (k, 3) with unit
     normals n (k, 3): linearized point-to-plane least squares in (rotation vector, shift) about x's centroid, plus
-    POINT_WEIGHT^2 times the point-to-point distances, which fix what the planes leave free."""
+    POINT_WEIGHT^2 times the point-to-point distances, which fix what the planes leave free. With ``scaled``, a
+    similarity: also a scale about the centroid (a column n . (x - c)), which planes through the centroid leave
+    free (it then stays)."""
     c = x.mean(axis=0)
     xc = x - c
     k = len(x)
     plane = np.hstack([np.cross(xc, n), n])  # n . (x - p) + omega . (xc x n) + n . t
+    if scaled:
+        plane = np.hstack([plane, np.sum(n * xc, axis=1)[:, None]])  # + sigma n . xc
     a = plane.T @ plane
     b = -plane.T @ np.sum(n * (x - p), axis=1)
-    if POINT_WEIGHT:  # 0 by default: the (3k, 6) point-to-point system is not built
+    if POINT_WEIGHT and not scaled:  # 0 by default: the (3k, 6) point-to-point system is not built
         skew = np.zeros((k, 3, 3))  # omega x xc = -[xc]_x omega, per axis
         skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = xc[:, 2], -xc[:, 1], xc[:, 0]
         skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -xc[:, 2], xc[:, 1], -xc[:, 0]
         point = np.concatenate([skew, np.broadcast_to(np.eye(3), (k, 3, 3))], axis=2).reshape(-1, 6)
         a += POINT_WEIGHT**2 * point.T @ point
         b += POINT_WEIGHT**2 * point.T @ (-(x - p)).ravel()
-    sol = np.linalg.solve(a + 1e-12 * np.trace(a) * np.eye(6), b)
-    rot = Rotation.from_rotvec(sol[:3]).as_matrix()
+    sol = np.linalg.solve(a + 1e-12 * np.trace(a) * np.eye(len(a)), b)
+    rot = Rotation.from_rotvec(sol[:3]).as_matrix() * (1.0 + sol[6] if scaled else 1.0)
     out = np.eye(4)
     out[:3, :3] = rot
-    out[:3, 3] = c + sol[3:] - rot @ c
+    out[:3, 3] = c + sol[3:6] - rot @ c
     return out
 
 
@@ -290,9 +294,10 @@ def icp(
     *,
     iterations: int = ICP_COARSE,
     exact: bool = False,
+    scaled: bool = False,
 ) -> tuple[np.ndarray, float]:
-    """Trimmed point-to-plane ICP (rigid: the scale of ``matrix`` is kept) of ``source`` (in its own frame) onto
-    ``target`` from ``matrix``.
+    """Trimmed point-to-plane ICP (rigid: the scale of ``matrix`` is kept; with ``scaled`` a similarity) of
+    ``source`` (in its own frame) onto ``target`` from ``matrix``.
 
     Each iteration pairs every moved point with the target's nearest vertex (its tangent plane) or, with ``exact``,
     its closest point on the triangles; drops pairs farther than ICP_TRIM times the median distance (but keeps those
@@ -313,7 +318,7 @@ def icp(
         if keep.sum() < 6:
             return matrix, np.inf
         rms = float(np.sqrt(np.mean(dist[keep] ** 2)))
-        step = rigid_step(moved.points[keep], n[keep], p[keep])
+        step = rigid_step(moved.points[keep], n[keep], p[keep], scaled)
         matrix = step @ matrix
         change = np.linalg.norm(step - np.eye(4))
         if change < ICP_TOL:

@@ -20,6 +20,7 @@ from .harmonic import HarmonicMap, edge_length
 from .overlap import rigid_overlap, warped_overlap
 from .partial import register_overlap
 from .resample import blur_grid, blur_sigma, resample_grid
+from .snap import snap_rigid
 from .topology import DiskMesh, prepare_disk
 
 # Meshes of together at least this many triangles get their maps to the square in a forked child while the overlap is
@@ -226,15 +227,8 @@ def register_disks(
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
     params = {**result.params, "mesh_blur_sigma": sigma if used is not grids else 0.0}
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos), params=params)
-    return MeshRegistration(
-        disks[0],
-        disks[1],
-        uvs[0],
-        uvs[1],
-        tuple(used),
-        result,
-        infos,
-    )
+    whole = MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(used), result, infos)
+    return snap_rigid(whole, options)
 
 
 def json_ready(info: dict) -> dict:
