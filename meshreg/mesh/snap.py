@@ -25,6 +25,8 @@ from .surface import Surface
 SNAP_RESIDUAL = 0.005  # answers fitting the points within this coordinate residual (area 1) are tried
 SNAP_TIGHT = 0.05  # the refined pose must bring the meshes within this RMS (edge lengths): the same surface
 SNAP_ITERATIONS = 30  # ICP iterations on the triangles (exact closest points), as the rigid overlap path
+# ICP runs on at most this many of the second's vertices (seeded): on two 100k-triangle meshes all 50,000 took 5.6 s
+SNAP_POINTS = 4000
 
 
 def snap_rigid(mr, options):
@@ -36,9 +38,7 @@ def snap_rigid(mr, options):
         return _marked(mr, False)
     first, second = Surface(mr.first.vertices, mr.first.faces), Surface(mr.second.vertices, mr.second.faces)
     start = np.linalg.inv(result.transform)  # the second into the first's frame
-    pose, rms = icp(
-        Cloud(second.vertices, second.normals), first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True
-    )
+    pose, rms = icp(_vertex_sample(second), first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
     scale = float(np.cbrt(abs(np.linalg.det(pose[:3, :3]))))
     if not rms <= SNAP_TIGHT * max(first.edge, scale * second.edge):
         return _marked(mr, False)
@@ -47,8 +47,6 @@ def snap_rigid(mr, options):
     placed = second.moved(pose)
     _, _, triangle, weights = placed.project(nodes.points.reshape(-1, 3))
     h = second.at(mr.uv2, triangle, weights).reshape(n, n, 2)
-    _, _, triangle, weights = first.project(placed.vertices)
-    matches = first.at(mr.uv1, triangle, weights)  # each second vertex's closest point, on the first's square
     objective = Objective(*mr.grids)
     rotation, energy, residual = objective.judge(h)
     if not (residual.plus < result.residual and _shift(start, pose, second) <= result.residual * np.sqrt(first.area)):
@@ -66,7 +64,15 @@ def snap_rigid(mr, options):
         energy_stages=(*result.energy_stages, "snap"),
         params={**result.params, "snapped": True, "snap_rms": rms},
     )
-    return replace(mr, result=snapped, matches=matches)
+    return replace(mr, result=snapped)
+
+
+def _vertex_sample(surface: Surface) -> Cloud:
+    """At most SNAP_POINTS of the surface's vertices (a seeded random choice) with their normals: points on the
+    surface itself (voxel centroids of a curved mesh lie off it by more than the snap's tolerance)."""
+    count = len(surface.vertices)
+    chosen = np.random.default_rng(0).choice(count, SNAP_POINTS, replace=False) if count > SNAP_POINTS else slice(None)
+    return Cloud(surface.vertices[chosen], surface.normals[chosen])
 
 
 def _shift(start: np.ndarray, pose: np.ndarray, second: Surface) -> float:
