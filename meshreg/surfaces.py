@@ -45,9 +45,9 @@ def as_input(surface, name: str | None = None) -> GridSurface | Mesh:
         return read_grid(path)
     if hasattr(surface, "vertices") and (hasattr(surface, "faces") or hasattr(surface, "triangles")):
         faces = surface.faces if hasattr(surface, "faces") else surface.triangles  # trimesh / Open3D
-        return _mesh(np.asarray(surface.vertices), np.asarray(faces), name or type(surface).__name__)
+        return _mesh(surface.vertices, faces, name or type(surface).__name__)
     if isinstance(surface, tuple) and len(surface) == 2:  # a nested list is grid data, a pair of arrays a mesh
-        return _mesh(np.asarray(surface[0]), np.asarray(surface[1]), name or "(vertices, faces)")
+        return _mesh(surface[0], surface[1], name or "(vertices, faces)")
     if isinstance(surface, np.ndarray) or (isinstance(surface, (tuple, list)) and len(surface)):
         try:
             return GridSurface.from_array(surface)
@@ -59,7 +59,19 @@ def as_input(surface, name: str | None = None) -> GridSurface | Mesh:
     )
 
 
-def _mesh(vertices: np.ndarray, faces: np.ndarray, name: str) -> Mesh:
+def _array(values, what: str, name: str) -> np.ndarray:
+    """``values`` as an array, or an InputError naming ``what`` of mesh ``name`` when they are not rectangular
+    (rows of different lengths) or not numbers."""
+    try:
+        return np.asarray(values)
+    except (ValueError, TypeError) as err:
+        raise InputError(
+            f"{name}: the {what} are not an (n, 3) table of numbers ({err}): give them as an (n, 3) array"
+        ) from None
+
+
+def _mesh(vertices, faces, name: str) -> Mesh:
+    vertices, faces = _array(vertices, "vertices", name), _array(faces, "faces", name)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
         raise InputError(
             f"{name}: a mesh needs vertices (n, 3) and triangular faces (m, 3), got {vertices.shape} and {faces.shape}"

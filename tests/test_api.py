@@ -146,3 +146,8 @@ def test_bad_surfaces_are_refused_with_what_is_accepted(pair):
         meshreg.register({}, grid)
     with pytest.raises(InputError, match="integer"):
         meshreg.register((v1, f1.astype(float)), (v1, f1))
+    ragged = [list(v1[0]), list(v1[1]), list(v1[2, :2])]  # a row of 2 numbers: numpy refuses the nested list
+    with pytest.raises(InputError, match=r"first: the vertices are not an \(n, 3\) table"):
+        meshreg.register((ragged, [[0, 1, 2]]), (v1, f1))
+    with pytest.raises(InputError, match=r"the faces are not an \(n, 3\) table"):
+        meshreg.register((v1, [[0, 1, 2], [0, 1]]), (v1, f1))
