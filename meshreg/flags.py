@@ -105,7 +105,8 @@ FLAGS: tuple[Flag, ...] = (
     Flag(
         "--mesh-blur",
         "mesh_blur",
-        f"blur both grids over S median edges of the coarser mesh (default {MESH_BLUR_DEFAULT}; 0 = off)",
+        f"mode auto, pairs whose maps nearly agree: register grids blurred over S median edges of the coarser "
+        f"mesh (default {MESH_BLUR_DEFAULT}; 0 = off)",
         float,
         metavar="S",
         group="meshes",

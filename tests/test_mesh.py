@@ -80,16 +80,18 @@ def test_symmetric_sheet_meshes_match_truly_corresponding_points(kind):
 
 @pytest.mark.slow
 def test_face_scan_at_the_default_resolution_converges():
-    """The raw face-scan crop against its remeshed, rotated, rescaled copy with every default (101 x 101): E at
-    most 0.02, the true rotation within 1 degree, corresponding vertices within 0.5% of sqrt(area) of their true
-    partners (median). Point-sampled grids stopped at E = 0.026: the scan's noise, aliased (Options.antialias)."""
+    """The raw face-scan crop against its remeshed, rotated, rescaled copy with every default (101 x 101): one rigid
+    surface, so the answer is snapped to closest points (meshreg.mesh.snap): the true rotation within 0.05 degrees
+    (0.5 before the snap), corresponding vertices within 0.02% of sqrt(area) of their true partners (median; 0.15%
+    before), E at most 0.025 (0.0216 at the snapped answer: the scan's noise and its filled holes; the descent's own
+    minimum, 0.0152, sits off the truth). Point-sampled grids stopped at E = 0.026 (Options.antialias)."""
     from meshreg.mesh.samples import face_scan_errors, face_scan_pair
 
     (v1, f1), (v2, f2, xy), rot = face_scan_pair()
     mr = register_meshes((v1, f1), (v2, f2), Options())
-    assert mr.result.energy <= 0.02
-    assert angle_between(mr.result.rotation, rot) < 1.0
-    assert np.nanmedian(face_scan_errors(mr.result, (v1, f1), xy)) <= 0.005
+    assert mr.result.params["snapped"] and mr.result.energy <= 0.025
+    assert angle_between(mr.result.rotation, rot) < 0.05
+    assert np.nanmedian(face_scan_errors(mr.result, (v1, f1), xy)) <= 0.0002
     assert not mr.result.mirrored
 
 

@@ -262,8 +262,8 @@ def rigid_step(x, n, p, scaled: bool = False) -> np.ndarray:
     """The small rigid motion (4 x 4) that best moves points x (k, 3) onto the planes through p (k, 3) with unit
     normals n (k, 3): linearized point-to-plane least squares in (rotation vector, shift) about x's centroid, plus
     POINT_WEIGHT^2 times the point-to-point distances, which fix what the planes leave free. With ``scaled``, a
-    similarity: also a scale about the centroid (a column n . (x - c)), which planes through the centroid leave
-    free (it then stays)."""
+    similarity: also a scale about the centroid (a column n . (x - c); planes through the centroid leave it free,
+    and it then stays), without the point-to-point term."""
     c = x.mean(axis=0)
     xc = x - c
     k = len(x)

@@ -41,7 +41,8 @@ class MeshRegistration:
     uv1, uv2 : ndarray, shape (n1, 2), (n2, 2)
         Each disk vertex's place on the unit square.
     grids : (GridSurface, GridSurface)
-        The meshes resampled on the square; ``result`` registers them.
+        The meshes resampled on the square (as resampled: ``result`` may have registered blurred copies,
+        ``result.params["mesh_blur_sigma"]``).
     result : Registration
     info : dict
         Per mesh ("first", "second"): the cleanup report, the map's flipped and degenerate triangles, corners,
@@ -227,8 +228,8 @@ def register_disks(
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
     params = {**result.params, "mesh_blur_sigma": sigma if used is not grids else 0.0}
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos), params=params)
-    whole = MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(used), result, infos)
-    return snap_rigid(whole, options)
+    whole = MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, infos)
+    return snap_rigid(whole, tuple(used), tried=options.mode == "auto" and options.bend_window > 0)
 
 
 def json_ready(info: dict) -> dict:

@@ -149,9 +149,10 @@ def blur_sigma(edge: float, mesh_blur: float, nodes: int) -> float:
 
 
 def blur_grid(grid: GridSurface, sigma: float) -> GridSurface:
-    """``grid`` blurred by a Gaussian of standard deviation ``sigma`` (nodes) along both axes, the nodes beyond
-    the sides reflected oddly through the side nodes (planes stay planes; the sides move only with the curve of
-    the surface across them). Its nodes' parameters are kept.
+    """``grid`` blurred by a Gaussian of standard deviation ``sigma`` (nodes, the same along both axes: the grid's
+    nodes are taken as equally spaced) along both axes, the nodes beyond the sides reflected oddly through the side
+    nodes, repeatedly where the kernel reaches beyond the opposite side (planes stay planes; the sides move only with
+    the curve of the surface across them). Its nodes' parameters are kept.
 
     Examples
     --------
@@ -164,7 +165,8 @@ def blur_grid(grid: GridSurface, sigma: float) -> GridSurface:
     points = grid.points
     for axis in (0, 1):
         v = np.moveaxis(points, axis, 0)
-        k = min(int(np.ceil(GAUSS_TAIL * sigma)), len(v) - 1)
-        v = gaussian_filter1d(_odd_padded(v, k), sigma, axis=0, mode="nearest")[k : k + len(v)]
+        k = int(np.ceil(GAUSS_TAIL * sigma))
+        padded = np.pad(v, [(k, k)] + [(0, 0)] * (v.ndim - 1), mode="reflect", reflect_type="odd")
+        v = gaussian_filter1d(padded, sigma, axis=0, mode="constant", truncate=GAUSS_TAIL)[k : k + len(v)]
         points = np.moveaxis(v, 0, axis)
     return GridSurface.from_array(points, grid.r, grid.t)

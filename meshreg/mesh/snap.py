@@ -3,12 +3,12 @@ the registration's similarity is refined by point-to-plane ICP on the triangles,
 matched with its closest point on the second mesh in that pose.
 
 The elastic answer h of such a pair is limited by what the grids resolve (the benchmark's remeshed sheet: 0.0014 of
-sqrt(area) off, against 0.0001 for Open3D's nearest points); the rigid overlap path (:mod:`meshreg.mesh.partial`)
-already matches crops this way to below 5e-5. Here the same is done for a pair registered whole, when its answer
-shows it is rigid (blurred grids, see ``Options.mesh_blur``, and a coordinate residual of at most SNAP_RESIDUAL) and
-the ICP pose (a similarity: point-to-plane with a scale) makes the meshes coincide (RMS at most SNAP_TIGHT edge
-lengths); the snapped h is kept only if its coordinate residual is lower and the refined pose moved the points by
-no more than the answer's residual (ICP slides along what pins a surface weakly).
+sqrt(area) off, against 0.0001 for Open3D's nearest points; pymeshlab's face scan against a remeshed copy: 0.15%);
+the rigid overlap path (:mod:`meshreg.mesh.partial`) already matches crops this way to below 5e-5. Here the same is
+done for a pair registered whole in mode "auto" when the ICP pose (a similarity: point-to-plane with a scale, from
+``result.transform``) makes the meshes coincide, RMS at most SNAP_TIGHT edge lengths (a bent pair does not: it is
+left as registered); the snapped h is kept only if its coordinate residual is lower and the refined pose moved the
+points by no more than the answer's residual (ICP slides along what pins a surface weakly).
 """
 
 from __future__ import annotations
@@ -20,10 +20,8 @@ import numpy as np
 
 from ..objective import Objective
 from .align import Cloud, icp
-from .resample import resample_grid
 from .surface import Surface
 
-SNAP_RESIDUAL = 0.005  # answers fitting the points within this coordinate residual (area 1) are tried
 SNAP_TIGHT = 0.05  # the refined pose must bring the meshes within this RMS (edge lengths): the same surface
 SNAP_ITERATIONS = 30  # ICP iterations on the triangles (exact closest points), as the rigid overlap path
 # ICP runs on at most this many of the second's vertices (seeded): on two 100k-triangle meshes all 50,000 took 5.6 s,
@@ -31,43 +29,48 @@ SNAP_ITERATIONS = 30  # ICP iterations on the triangles (exact closest points), 
 SNAP_POINTS = 2000
 
 
-def snap_rigid(mr, options):
-    """``mr`` (a :class:`~meshreg.mesh.correspond.MeshRegistration` of two meshes registered whole) with h, R, E,
-    the residual and the transform from closest points at the ICP-refined pose, when the pair is one rigid surface
-    (see the module); else ``mr`` itself. ``result.params["snapped"]`` says which."""
+def snap_rigid(mr, registered: tuple, tried: bool = True):
+    """``mr`` (a :class:`~meshreg.mesh.correspond.MeshRegistration` of two meshes registered whole; ``mr.grids``
+    the grids as resampled) with h, R, E, the residual and the transform from closest points at the ICP-refined
+    pose, when ``tried`` (mode "auto") and the pair is one rigid surface (see the module); else ``mr`` itself.
+    E and the residual are measured on ``registered`` (the grids the registration used, blurred or not) at the
+    snapped h and the pose's rotation. ``result.params["snapped"]`` says which; ``timings["snap"]`` (in ``total``)
+    is the time spent trying."""
     result, start_time = mr.result, time.perf_counter()
-    if not (result.params.get("blurred") and result.residual <= SNAP_RESIDUAL):
+    if not (tried and np.isfinite(result.residual)):
         return _marked(mr, False)
     first, second = Surface(mr.first.vertices, mr.first.faces), Surface(mr.second.vertices, mr.second.faces)
     start = np.linalg.inv(result.transform)  # the second into the first's frame
     pose, rms = icp(_vertex_sample(second), first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
     scale = float(np.cbrt(abs(np.linalg.det(pose[:3, :3]))))
     if not rms <= SNAP_TIGHT * max(first.edge, scale * second.edge):
-        return _marked(mr, False)
-    n = options.resolution
-    nodes = resample_grid(mr.first.vertices, mr.first.faces, mr.uv1, n, n, options.antialias)
-    placed = second.moved(pose)
-    _, _, triangle, weights = placed.project(nodes.points.reshape(-1, 3))
-    h = second.at(mr.uv2, triangle, weights).reshape(n, n, 2)
-    objective = Objective(*mr.grids)
-    rotation, energy, residual = objective.judge(h)
-    if not (residual.plus < result.residual and _shift(start, pose, second) <= result.residual * np.sqrt(first.area)):
-        return _marked(mr, False)
+        return _marked(mr, False, time.perf_counter() - start_time)
+    nodes = mr.grids[0].points
+    _, _, triangle, weights = second.moved(pose).project(nodes.reshape(-1, 3))
+    h = second.at(mr.uv2, triangle, weights).reshape(*nodes.shape[:2], 2)
     transform = np.linalg.inv(pose)
+    rotation = transform[:3, :3] * scale  # pose = scale R: its inverse is R^T / scale
+    energy, residual = Objective(*registered).evaluate(rotation, h)
+    if not (residual.plus < result.residual and _shift(start, pose, second) <= result.residual * np.sqrt(first.area)):
+        return _marked(mr, False, time.perf_counter() - start_time)
+    seconds = time.perf_counter() - start_time
     snapped = replace(
         result,
         h=h,
-        rotation=transform[:3, :3] / np.cbrt(np.linalg.det(transform[:3, :3])),
+        rotation=rotation,
         energy=float(energy),
         residual=residual.plus,
         residual_mirrored=residual.minus,
         transform=transform,
-        energy_history=np.append(result.energy_history, energy),
-        energy_stages=(*result.energy_stages, "snap"),
-        params={**result.params, "snapped": True, "snap_rms": rms},
-        timings={**result.timings, "snap": time.perf_counter() - start_time},
+        params={**result.params, "snapped": True, "snap_rms": rms, "energy_before_snap": result.energy},
+        timings=_timed(result.timings, seconds),
     )
     return replace(mr, result=snapped)
+
+
+def _timed(timings: dict, seconds: float) -> dict:
+    """``timings`` with the snap's ``seconds`` recorded and added to ``total``."""
+    return {**timings, "snap": seconds, "total": timings.get("total", 0.0) + seconds}
 
 
 def _vertex_sample(surface: Surface) -> Cloud:
@@ -85,6 +88,7 @@ def _shift(start: np.ndarray, pose: np.ndarray, second: Surface) -> float:
     return float(np.sqrt(np.mean(np.sum((second.moved(start).vertices - second.moved(pose).vertices) ** 2, axis=1))))
 
 
-def _marked(mr, snapped: bool):
-    """``mr`` with ``params["snapped"]`` set."""
-    return replace(mr, result=replace(mr.result, params={**mr.result.params, "snapped": snapped}))
+def _marked(mr, snapped: bool, seconds: float | None = None):
+    """``mr`` with ``params["snapped"]`` set (and the ``seconds`` spent trying, when the ICP ran)."""
+    timings = mr.result.timings if seconds is None else _timed(mr.result.timings, seconds)
+    return replace(mr, result=replace(mr.result, params={**mr.result.params, "snapped": snapped}, timings=timings))
