@@ -396,11 +396,12 @@ def test_nearly_symmetric_sheet_is_not_matched_with_its_mirror_image():
     image of the copy (registered, it gave E = 0.014 at a half turn from the true rotation, before starts were
     judged by their residual). Now that start is dropped and the best-ranked one is right: the true rotation at a
     third of that E, with one start registered as with three. The default path ranks the symmetries by E_w, which
-    puts the right one first: true rotation within 0.5 degrees."""
+    puts the right one first: true rotation within 0.5 degrees (one rigid surface: snapped to closest points, E at
+    the snapped answer 0.0165, the descent's own minimum 0.0084)."""
     rot = Rotation.random(random_state=7).as_matrix()
     first, second = _ellipse_sheet(3000, 17), _ellipse_sheet(5000, 27, rotation=rot, scale=1.7)
     default = register_meshes(first, second, Options(resolution=61))
-    assert default.result.energy < 0.01 and angle_between(default.result.rotation, rot) < 2.0
+    assert default.result.energy < 0.02 and angle_between(default.result.rotation, rot) < 0.5
     mr = register_meshes(first, second, Options(resolution=61, bend_window=0.0))
     assert mr.result.energy < 0.006
     assert angle_between(mr.result.rotation, rot) < 2.0 and not mr.result.mirrored
