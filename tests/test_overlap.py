@@ -6,14 +6,15 @@ from functools import cache
 
 import numpy as np
 import pytest
+from scipy.spatial import Delaunay
 from scipy.spatial.transform import Rotation
 
 from meshreg import Options
 from meshreg.mesh import deform
-from meshreg.mesh.align import align
+from meshreg.mesh.align import align, areas_scale
 from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.export import UNMATCHED, colored_outputs
-from meshreg.mesh.overlap import clip, rigid_overlap, same_region, signed_rim_distance, slide, trim
+from meshreg.mesh.overlap import Side, _same_rim, clip, rigid_overlap, same_region, signed_rim_distance, slide, trim
 from meshreg.mesh.surface import Surface, transform_points
 from meshreg.mesh.topology import prepare_disk, triangle_areas
 from meshreg.result import Registration
@@ -372,3 +373,57 @@ def test_a_warp_that_brings_little_of_either_mesh_together_is_not_a_partial_over
     p = _rolled((148, 0.0349), 102.31, (1367, 828), 48, (31.608, -10.596, -58.304), 0.7227)
     mr = register_meshes(p.first, p.second, Options())
     assert mr.result.info["overlap"]["regime"] in ("whole", "full")
+
+
+def _random_square(inner: int, rim: int, seed: int, scale: float = 1.0, turn=None, noise: float = 0.0):
+    """The relief sheet of :func:`_strip_grid` over [-1, 1]^2, Delaunay triangles of random points (``rim`` of them
+    spread along the square's sides, ``inner`` inside), with Gaussian vertex noise ``noise``."""
+    rng = np.random.default_rng(seed)
+    corners = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    side, t = np.divmod((np.arange(rim) + rng.random()) * 8.0 / rim, 2.0)
+    side = side.astype(int)
+    along = corners[side] + 0.5 * t[:, None] * (np.roll(corners, -1, axis=0) - corners)[side]
+    uv = np.vstack([corners, along, rng.uniform(-0.9, 0.9, (inner, 2))])
+    x, y = uv.T
+    z = 0.25 * np.exp(-((x - 0.3) ** 2 + (y - 0.2) ** 2) / 0.08) + 0.1 * np.sin(2 * x + y)
+    points = np.c_[x, y, z] + noise * rng.normal(size=(len(x), 3))
+    turn = np.eye(3) if turn is None else turn
+    return prepare_disk(scale * points @ turn.T, Delaunay(uv).simplices)
+
+
+def test_a_noisy_copy_in_another_unit_covers_the_same_region():
+    # held out 2026-12-01: vertex noise (0.3% of a sheet's size, 0.14 edge lengths) raised the noisy mesh's area by
+    # 7-13%, so the pose at the scale of the areas' ratio was 3.7-6% too large and left 7-11% of the other mesh
+    # beyond the noisy one's rim: "deformed", then a rigid partial overlap with 260 vertices unmatched. The scale
+    # now comes from areas projected onto the local mean normals (align.tiled_area)
+    turn = Rotation.from_euler("xyz", [35, -50, 120], degrees=True).as_matrix()
+    noisy, clean = _random_square(1000, 120, 0, noise=0.01), _random_square(1500, 100, 10, 2.5, turn)
+    first, second = (Surface(d.vertices, d.faces) for d in (noisy, clean))
+    assert np.sqrt(first.area / second.area) * 2.5 > 1.03  # the plain areas
+    assert abs(areas_scale(first, second) * 2.5 - 1) < 0.005
+    found = rigid_overlap(noisy, clean)
+    assert found.regime == "full" and abs(found.alignment.scale * 2.5 - 1) < 0.005
+
+
+def test_a_coarse_pair_posed_off_by_a_shift_covers_the_same_region():
+    # held out 2026-12-01: 38 against 70 triangles of one square terrain (edges 0.505 and 0.363), posed 0.2 off (at
+    # the true pose their rims coincide within 0.005 edges), reached 0.19 beyond the second's rim and 0.14 beyond
+    # the first's: judged a rigid partial overlap (91% / 91%), 8 vertices unmatched. A shift of the pose reaches
+    # both ways (a crop one way: test_a_fine_crop_of_a_coarse_mesh_is_a_partial_overlap)
+    def side(reach):
+        return Side(np.array([0.3, 0.0, -reach]), np.zeros(3), 0.9)
+
+    assert _same_rim(side(0.19), side(0.14), (0.505, 0.363))
+    assert not _same_rim(side(0.19), side(0.0), (0.505, 0.363))
+
+
+def test_a_noisy_crop_is_not_taken_for_the_whole():
+    # held out 2026-12-01: with vertex noise 0.003 (0.09-0.16 edge lengths) the pose's RMS is above TIGHT, and the
+    # pose alone judged the pair at the warp's tolerance (5%): centred crops of 95% and 97% of a sheet were "full",
+    # registered whole. A pose places the rims as a rigid pose does: its tolerance is the rigid one (2%)
+    p = deform.partial_pair("noisy-97%", deform.centred_region(0.97), **SHEET)
+    rng = np.random.default_rng(0)
+    (v1, f1), (v2, f2) = p.first, p.second
+    noisy = (prepare_disk(v + 0.003 * rng.normal(size=v.shape), f) for v, f in ((v1, f1), (v2, f2)))
+    found = rigid_overlap(*noisy, 0.01)
+    assert found.regime == "deformed" and found.first.fraction < 0.975  # the warp judges it: "rigid" (noise)

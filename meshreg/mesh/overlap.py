@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..rotation import kabsch
-from .align import Alignment, align, axes_pose
+from .align import Alignment, align, areas_scale, axes_pose
 from .graph import face_normals
 from .surface import Surface, transform_points
 from .topology import DiskMesh, EarFeet, prepare_disk, triangle_areas
@@ -50,7 +50,9 @@ RIGID_RATIO = 1.5  # the pose is kept (regime "rigid") when its RMS is within th
 FULL_TOLERANCE = {"rigid": 0.02, "elastic": 0.05}
 # ... or when neither reaches more than this many edge lengths beyond the other's rim, whatever the area there: the
 # rims are one curve up to the triangulations (two held-out meshes of 38 and 70 triangles of one square sheet, whose
-# rim chords differ by up to 0.32 edges, were judged 91% / 91% overlaps and 8 of 28 vertices trimmed off)
+# rim chords differ by up to 0.32 edges, were judged 91% / 91% overlaps and 8 of 28 vertices trimmed off); each way in
+# edges of the mesh whose rim is crossed, plus the pose's shift, seen as the smaller reach (:func:`_same_rim`: that
+# pair, posed 0.2 off, reached 0.19 and 0.14 beyond each other's rims, edges 0.5 and 0.36)
 RIM_SLACK = 0.5
 SAME_SCALE = 0.05  # a pose within this log ratio of scale 1 keeps the meshes' units
 # a same-surface pose is trusted when the relief pins it: the rigid motion that raises the RMS distance over the
@@ -449,14 +451,11 @@ def _sides(first: DiskMesh, second: DiskMesh, target: Surface, placed: Surface, 
 def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, slid: float, edges: tuple):
     """The regime (and why the meshes are registered whole, if they are) of an overlap found at a pose ("rigid",
     whose :func:`slide` is ``slid`` edge lengths) or with the warp ("elastic"): "full" also when neither mesh reaches
-    more than RIM_SLACK edges of the other (``edges``: the first's, the second's) beyond the other's rim."""
+    further beyond the other's rim than :func:`_same_rim` allows (``edges``: the first's, the second's)."""
     tolerance = FULL_TOLERANCE[regime]
     if coincide < COINCIDE_ENOUGH:
         return "whole", "no pose or warp makes the meshes coincide where they overlap"
-    # the first's vertices against the second's rim (chords of the second's edges), and the reverse
-    same_rim = -np.min(one.signed, initial=0.0) <= RIM_SLACK * edges[1]
-    same_rim &= -np.min(two.signed, initial=0.0) <= RIM_SLACK * edges[0]
-    if (one.fraction >= 1 - tolerance and two.fraction >= 1 - tolerance) or same_rim:
+    if (one.fraction >= 1 - tolerance and two.fraction >= 1 - tolerance) or _same_rim(one, two, edges):
         return "full", ""
     if regime == "rigid" and not slid <= PINNED:
         return "whole", UNPINNED
@@ -467,11 +466,22 @@ def _verdict(regime: str, one: Side, two: Side, coincide: float, scale: float, s
     return regime, ""
 
 
+def _same_rim(one: Side, two: Side, edges: tuple) -> bool:
+    """Whether neither mesh reaches further beyond the other's rim than RIM_SLACK edges of the mesh whose rim it
+    crosses (the first's vertices against the second's rim chords, and the reverse), plus the pose's shift: a pose
+    off by a shift takes each mesh beyond the other's rim on opposite sides, so the smaller of the two reaches (at
+    most RIM_SLACK of the coarser edge) is allowed both ways; a crop reaches one way only."""
+    reach = (-float(np.min(one.signed, initial=0.0)), -float(np.min(two.signed, initial=0.0)))
+    shift = min(*reach, RIM_SLACK * max(edges))
+    return reach[0] <= RIM_SLACK * edges[1] + shift and reach[1] <= RIM_SLACK * edges[0] + shift
+
+
 def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Overlap:
     """Pose the second mesh in the first's frame (:func:`meshreg.mesh.align.align`) and find where they overlap at
     that pose. Regime "full" or "rigid" when the pose makes them coincide (RMS over the overlap below TIGHT edge
-    lengths); "full" also when the pose is looser but already shows each mesh covering the other at the elastic
-    tolerance (a noisy or smoothed copy: the warp would only confirm it); else "deformed": the warp of
+    lengths); "full" also when the pose is looser but already shows each mesh covering the other at the rigid
+    tolerance (a noisy or smoothed copy: the warp would only confirm it; the warp's looser tolerance had taken noisy
+    crops of 95% and 97% of a sheet for the whole); else "deformed": the warp of
     :func:`warped_overlap` decides. With ``quick`` > 0, :func:`same_region` at that tolerance is tried first (no
     feature search when it finds the meshes covering the same region)."""
     start = time.perf_counter()
@@ -493,7 +503,7 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
             spread["probe"] = probed_rms(s1.vertices[inside], system, posed, PROBE * edge)
             # unpinned only when the probe shows it: NaN (a narrow overlap) leaves the verdict to the slide
             regime, reason = ("whole", UNPINNED) if spread["probe"] <= TIGHT * edge else ("rigid", "")
-    elif _verdict("elastic", one, two, coincide, alignment.scale, slid, edges)[0] == "full":
+    elif _verdict("rigid", one, two, coincide, alignment.scale, slid, edges)[0] == "full":
         regime, reason = "full", ""  # the pose already shows each mesh covering the other: no warp needed
     else:
         regime, reason = "deformed", ""
@@ -598,8 +608,9 @@ def _warped(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarr
 
 def _areas_scale(posed: Overlap, second: DiskMesh) -> float | None:
     """The scale of one surface in two units: the square root of the meshes' areas' ratio (the other scale of
-    :func:`meshreg.mesh.align.align`); None when it is within SAME_SCALE of 1."""
-    areas = float(np.sqrt(posed.target.area / Surface(second.vertices, second.faces).area))
+    :func:`meshreg.mesh.align.align`, :func:`meshreg.mesh.align.areas_scale`); None when it is within SAME_SCALE of
+    1."""
+    areas = areas_scale(posed.target, Surface(second.vertices, second.faces))
     return None if abs(np.log(areas)) <= SAME_SCALE else areas
 
 
