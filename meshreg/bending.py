@@ -130,13 +130,7 @@ def register_bending(
     start = time.perf_counter()
     timings: dict = {}
     tic = time.perf_counter()
-    tried = tried_symmetries(options.search and options.symmetries, options.keep_orientation, symmetry)
-    ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
-    fair = [(k, e) for k, e, mirrored in ranked if not mirrored]
-    if not fair:
-        raise every_start_mirrored(symmetry)
-    close = [k for k, e in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
-    spare = [k for k, _ in fair if k not in close]
+    ranked, close, spare = _ranked_symmetries(first, second, options, symmetry)
     timings["search"] = time.perf_counter() - tic
     area = second.area()
     use_blurred = blurred is not None and _unbent(blurred[0], blurred[1], blurred[1].area(), close)
@@ -149,16 +143,35 @@ def register_bending(
         return _descend(first, second, area, k, window, options, finest, Log(callback, timings))
 
     chosen, runs = _unmirrored(close, spare, descend)
-    k, plain = chosen.symmetry, chosen.objective
+    k = chosen.symmetry
     alternatives = []
     if symmetry is None:
         with Log(callback, timings).clock("alternatives"):
             alternatives = find_alternatives(
                 first, second, area, k, chosen, chosen.residual, options, Log(callback), TWIN_MARGIN
             )
-    h = symmetry_map(k, chosen.h)
     timings["total"] = time.perf_counter() - start
     params = {**_params(options, chosen, runs, ranked, window, first, second), "blurred": use_blurred}
+    return _registration(chosen, first, second, options, params, timings, alternatives)
+
+
+def _ranked_symmetries(first: GridSurface, second: GridSurface, options: Options, symmetry: int | None):
+    """The symmetries of the square tried, ranked by E_w at h = each (:func:`symmetry_energies`), the ones within
+    CHOICE_MARGIN of the best unmirrored one (at most ``options.max_starts``: descended first) and the other
+    unmirrored ones (spares, best first)."""
+    tried = tried_symmetries(options.search and options.symmetries, options.keep_orientation, symmetry)
+    ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
+    fair = [(k, e) for k, e, mirrored in ranked if not mirrored]
+    if not fair:
+        raise every_start_mirrored(symmetry)
+    close = [k for k, e in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
+    return ranked, close, [k for k, _ in fair if k not in close]
+
+
+def _registration(chosen, first: GridSurface, second: GridSurface, options: Options, params, timings, alternatives):
+    """The :class:`~meshreg.result.Registration` of the ``chosen`` run (h mapped back through its symmetry)."""
+    h = symmetry_map(chosen.symmetry, chosen.h)
+    plain = chosen.objective
     return Registration(
         rotation=chosen.rotation,
         h=h,
@@ -170,7 +183,7 @@ def register_bending(
         mode=options.mode,
         params=params,
         timings=timings,
-        symmetry=k,
+        symmetry=chosen.symmetry,
         energy_stages=tuple(chosen.log.stages),
         transform=similarity(chosen.rotation, first.points, second.at(h)),
         residual=chosen.residual.plus,
