@@ -20,7 +20,7 @@ import numpy as np
 
 from ..objective import Objective
 from .align import Cloud, icp
-from .surface import Surface
+from .surface import Surface, transform_points
 
 SNAP_TIGHT = 0.05  # the refined pose must bring the meshes within this RMS (edge lengths): the same surface
 SNAP_ITERATIONS = 30  # ICP iterations on the triangles (exact closest points), as the rigid overlap path
@@ -45,13 +45,14 @@ def snap_rigid(mr, registered: tuple, tried: bool = True):
     scale = float(np.cbrt(abs(np.linalg.det(pose[:3, :3]))))
     if not rms <= SNAP_TIGHT * max(first.edge, scale * second.edge):
         return _marked(mr, False, time.perf_counter() - start_time)
-    nodes = mr.grids[0].points
-    _, _, triangle, weights = second.moved(pose).project(nodes.reshape(-1, 3))
+    nodes, placed = mr.grids[0].points, second.moved(pose)
+    _, _, triangle, weights = placed.project(nodes.reshape(-1, 3))
     h = second.at(mr.uv2, triangle, weights).reshape(*nodes.shape[:2], 2)
     transform = np.linalg.inv(pose)
     rotation = transform[:3, :3] * scale  # pose = scale R: its inverse is R^T / scale
     energy, residual = Objective(*registered).evaluate(rotation, h)
-    if not (residual.plus < result.residual and _shift(start, pose, second) <= result.residual * np.sqrt(first.area)):
+    shift = _rms_distance(transform_points(start, second.vertices), placed.vertices)
+    if not (residual.plus < result.residual and shift <= result.residual * np.sqrt(first.area)):
         return _marked(mr, False, time.perf_counter() - start_time)
     seconds = time.perf_counter() - start_time
     snapped = replace(
@@ -81,11 +82,12 @@ def _vertex_sample(surface: Surface) -> Cloud:
     return Cloud(surface.vertices[chosen], surface.normals[chosen])
 
 
-def _shift(start: np.ndarray, pose: np.ndarray, second: Surface) -> float:
-    """RMS distance (first's units) that the refined ``pose`` moves the second's vertices from where ``start`` put
-    them. ICP may slide a surface that pins it weakly (a curled low-relief sheet: 0.0052 of sqrt(area), errors 6 times
-    higher); a snap moving the points by more than the answer's own residual is not trusted."""
-    return float(np.sqrt(np.mean(np.sum((second.moved(start).vertices - second.moved(pose).vertices) ** 2, axis=1))))
+def _rms_distance(before: np.ndarray, after: np.ndarray) -> float:
+    """RMS distance between two placements (k, 3) of the same points: how far the refined pose moved the second's
+    vertices from where the registration put them. ICP may slide a surface that pins it weakly (a curled low-relief
+    sheet: 0.0052 of sqrt(area), errors 6 times higher); a snap moving the points by more than the answer's own
+    residual is not trusted."""
+    return float(np.sqrt(np.mean(np.sum((before - after) ** 2, axis=1))))
 
 
 def _marked(mr, snapped: bool, seconds: float | None = None):
