@@ -15,13 +15,14 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError
 from .boundary import sharp_corners
+from .frontal import MultifrontalLU
 from .graph import side_lengths, turn_counts
 from .ordering import minimum_degree, spatial_order
 from .topology import DiskMesh, loop_segments, triangle_areas
 
-# SuperLU's relaxed supernode size and panel width (its defaults: 5 and 10). In the minimum degree order of a mesh
-# Laplacian's interior block, every pair from (1, 4) to (8, 8) factorized a 100k- (1M-) triangle terrain mesh within
-# the noise, 0.08-0.11 s (1.5-2.0 s) on a shared machine; small ones keep the factors' memory small.
+# the fallback SuperLU's relaxed supernode size and panel width (its defaults: 5 and 10). In the minimum degree order
+# of a mesh Laplacian's interior block, every pair from (1, 4) to (8, 8) factorized a 100k- (1M-) triangle terrain
+# mesh within the noise, 0.08-0.11 s (1.5-2.0 s) on a shared machine; small ones keep the factors' memory small.
 LU_RELAX = 1
 LU_PANEL = 4
 
@@ -238,21 +239,35 @@ def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
 
 
 class Factorization:
-    """Sparse LU of P A P^T, P the approximate minimum degree order of A + A^T (:func:`minimum_degree`);
-    :meth:`solve` solves A x = b.
+    """Sparse LU of A in an approximate minimum degree order of A + A^T (:func:`minimum_degree`); :meth:`solve`
+    solves A x = b.
 
-    SuperLU factorizes in the given order (``permc_spec="NATURAL"``): its own minimum degree ordering cost more
-    than the factorization itself (about 2.7 of 4.5 s for the interior block of a 1M-triangle terrain mesh), ours
-    0.8-1.0 s for the same fill (17.0M entries in L, unknowns in Morton order), the factorization then 1.5-1.7 s.
-    The diagonal is the pivot wherever it is nonzero (``diag_pivot_thresh=0``); where it is exactly zero SuperLU
-    pivots within the column. An exactly singular matrix raises SuperLU's RuntimeError.
+    The multifrontal LU (:class:`~meshreg.mesh.frontal.MultifrontalLU`: supernodes, dense fronts through BLAS,
+    independent subtrees in two threads) keeps the diagonal as pivot. Where a pivot is zero or the factors are not
+    finite, SuperLU factorizes in the same order and pivots within columns (``diag_pivot_thresh=0`` keeps the
+    diagonal wherever it is nonzero); an exactly singular matrix raises SuperLU's RuntimeError.
     """
 
     def __init__(self, a: sp.csc_matrix):
         a = sp.csc_matrix(a)
-        self.order = minimum_degree(a)
+        order = minimum_degree(a)
+        try:
+            self._lu = MultifrontalLU(a, order)
+        except ZeroDivisionError:
+            self._lu = _SuperLU(a, order)
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """x (n,) or (n, k) with A x = b."""
+        return self._lu.solve(b)
+
+
+class _SuperLU:
+    """SuperLU's LU of A in a given order (permc_spec NATURAL), pivoting within columns where the diagonal is 0."""
+
+    def __init__(self, a: sp.csc_matrix, order: np.ndarray):
+        self.order = order
         self.lu = spla.splu(
-            a[self.order][:, self.order].tocsc(),
+            a[order][:, order].tocsc(),
             permc_spec="NATURAL",
             diag_pivot_thresh=0.0,
             relax=LU_RELAX,
@@ -261,7 +276,6 @@ class Factorization:
         )
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """x (n,) or (n, k) with A x = b."""
         x = np.empty_like(b, dtype=float)
         x[self.order] = self.lu.solve(np.ascontiguousarray(b[self.order], dtype=float))
         return x
@@ -272,8 +286,8 @@ def factorize(a: sp.csc_matrix) -> Factorization:
 
     Both weightings give a matrix that needs no pivoting (mean-value: an M-matrix; cotangent: symmetric
     positive definite), so the factorization keeps the diagonal in an approximate minimum degree order of
-    A^T + A (:class:`Factorization`), with small supernodes (LU_RELAX, LU_PANEL); an exactly zero diagonal entry
-    is pivoted around within its column.
+    A^T + A (:class:`Factorization`: the multifrontal LU); a zero pivot hands the matrix to SuperLU, which pivots
+    within columns.
     """
     return Factorization(a)
 

@@ -1,0 +1,524 @@
+"""Sparse LU by the multifrontal method: the factorization of a mesh Laplacian's interior block (and of the ARAP
+systems of the warp) in a fill-reducing order, with the dense work done by BLAS.
+
+The unknowns are eliminated in the order of :func:`~meshreg.mesh.ordering.minimum_degree`, postordered along the
+elimination tree. Columns with nested structure are grouped into supernodes (relaxed: a few explicit zeros are
+allowed when they save small fronts); each supernode's frontal matrix gathers the matrix entries of its columns and
+its children's update matrices, is factorized in place (no pivoting: the systems are M-matrices or symmetric
+positive definite) and passes its Schur complement up the tree. Large fronts are factorized in column panels whose
+trailing update is one matrix product. Independent subtrees are factorized in two threads (the work is numba code
+that releases the GIL); the top of the tree after them.
+
+SuperLU, used before (``scipy.sparse.linalg.splu`` in the same order), spent 1.5-1.7 s on the interior block of a
+1M-triangle terrain mesh: it factorizes column by column (supernodes of 1 were its fastest setting), without BLAS.
+A matrix with a zero or non-finite pivot in this order is handed to SuperLU, which pivots within columns.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+from .ordering import _postorder, _symmetric_pattern, minimum_degree
+
+PANEL = 32  # columns per panel of a large front's factorization (its trailing update is one matrix product)
+UPDATE_ROWS = 256  # rows of a large front's trailing update per matrix product (bounds the scratch memory)
+BLOCKED_MIN = 48  # fronts of at least this many rows (and 8 pivots) are factorized in panels, smaller ones entry-wise
+# relaxed supernodes: a child supernode merges into its parent (adjacent columns) when the merged one has at most
+# RELAX_SIZES[k] columns and explicit zeros make at most RELAX_ZEROS[k] of its entries (the last size: any)
+RELAX_SIZES = (4, 16, 48)
+RELAX_ZEROS = (1.0, 0.5, 0.1, 0.05)
+THREADS = 2  # subtrees of the elimination tree factorized side by side
+THREADS_MIN = 100_000  # unknowns below which one thread factorizes (at 50k, two were no faster than one)
+SCHEDULE_SPLITS = 64  # subtrees split at most this often when looking for the best balance of the threads
+
+
+@numba.njit(cache=True)
+def _inverse(order):
+    inv = np.empty(len(order), np.int64)
+    for k in range(len(order)):
+        inv[order[k]] = k
+    return inv
+
+
+@numba.njit(cache=True)
+def _etree(ptr, rows, order, inv):
+    """Elimination tree (parent of each column, -1 at a root) of the symmetric pattern (ptr, rows) in ``order``."""
+    n = len(order)
+    parent = np.full(n, -1, np.int64)
+    ancestor = np.full(n, -1, np.int64)
+    for k in range(n):
+        col = order[k]
+        for p in range(ptr[col], ptr[col + 1]):
+            i = inv[rows[p]]
+            while i != -1 and i < k:
+                above = ancestor[i]
+                ancestor[i] = k
+                if above == -1:
+                    parent[i] = k
+                i = above
+    return parent
+
+
+@numba.njit(cache=True)
+def _relabel(parent, post):
+    """The tree ``parent`` with node post[k] renamed k."""
+    inv = _inverse(post)
+    out = np.empty(len(parent), np.int64)
+    for k in range(len(post)):
+        p = parent[post[k]]
+        out[k] = -1 if p == -1 else inv[p]
+    return out
+
+
+@numba.njit(cache=True)
+def _column_counts(ptr, rows, order, inv, parent):
+    """Entries below the diagonal in each column of L (the row subtrees of the elimination tree)."""
+    n = len(order)
+    count = np.zeros(n, np.int64)
+    mark = np.full(n, -1, np.int64)
+    for i in range(n):
+        mark[i] = i
+        col = order[i]
+        for p in range(ptr[col], ptr[col + 1]):
+            j = inv[rows[p]]
+            while j != -1 and j < i and mark[j] != i:
+                count[j] += 1
+                mark[j] = i
+                j = parent[j]
+    return count
+
+
+@numba.njit(cache=True)
+def _merges(columns, real, nu):
+    """Whether a supernode of ``columns`` with ``real`` true entries and ``nu`` update rows stays relaxed."""
+    stored = columns * (columns + nu) - columns * (columns - 1) // 2
+    zeros = stored - real
+    for k in range(len(RELAX_SIZES)):
+        if columns <= RELAX_SIZES[k]:
+            return zeros <= RELAX_ZEROS[k] * stored
+    return zeros <= RELAX_ZEROS[-1] * stored
+
+
+@numba.njit(cache=True)
+def _supernodes(parent, count):
+    """First column of each (relaxed) supernode, (nsup + 1,) ending with n: fundamental supernodes (a chain of
+    only children whose columns nest), then each merged into its parent when it is the parent's last child and
+    :func:`_merges` allows."""
+    n = len(parent)
+    children = np.zeros(n, np.int64)
+    for j in range(n):
+        if parent[j] != -1:
+            children[parent[j]] += 1
+    first = np.empty(n + 1, np.int64)
+    nsup, real, f = 0, 0, 0
+    while f < n:
+        end = f + 1
+        while end < n and parent[end - 1] == end and count[end - 1] == count[end] + 1 and children[end] == 1:
+            end += 1
+        own = 0
+        for k in range(f, end):
+            own += count[k] + 1
+        if nsup > 0 and parent[f - 1] == f and _merges(end - first[nsup - 1], real + own, count[end - 1]):
+            real += own
+        else:
+            first[nsup] = f
+            nsup += 1
+            real = own
+        f = end
+    first[nsup] = n
+    return first[: nsup + 1].copy()
+
+
+@numba.njit(cache=True)
+def _append(flat, k, value):
+    if k >= len(flat):
+        grown = np.empty(2 * len(flat) + 16, np.int64)
+        grown[:k] = flat[:k]
+        flat = grown
+    flat[k] = value
+    return flat
+
+
+@numba.njit(cache=True)
+def _structure(ptr, rows, order, inv, first, parent):
+    """Each supernode's update rows (flat, with offsets (nsup + 1,): rows after its columns in its front), its
+    parent supernode (-1 at a root) and its children as linked lists (head, following; in increasing order)."""
+    nsup, n = len(first) - 1, len(order)
+    owner = np.empty(n, np.int64)
+    for s in range(nsup):
+        owner[first[s] : first[s + 1]] = s
+    sparent = np.full(nsup, -1, np.int64)
+    head, following = np.full(nsup, -1, np.int64), np.full(nsup, -1, np.int64)
+    for s in range(nsup - 1, -1, -1):
+        p = parent[first[s + 1] - 1]
+        if p != -1:
+            sparent[s] = owner[p]
+            following[s], head[owner[p]] = head[owner[p]], s
+    mark = np.full(n, -1, np.int64)
+    flat, off = np.empty(len(rows) + n, np.int64), np.zeros(nsup + 1, np.int64)
+    k = 0
+    for s in range(nsup):
+        last = first[s + 1]
+        for j in range(first[s], last):
+            col = order[j]
+            for p in range(ptr[col], ptr[col + 1]):
+                i = inv[rows[p]]
+                if i >= last and mark[i] != s:
+                    mark[i] = s
+                    flat = _append(flat, k, i)
+                    k += 1
+        c = head[s]
+        while c != -1:
+            for q in range(off[c], off[c + 1]):
+                i = flat[q]
+                if i >= last and mark[i] != s:
+                    mark[i] = s
+                    flat = _append(flat, k, i)
+                    k += 1
+            c = following[c]
+        off[s + 1] = k
+    return flat[:k].copy(), off, sparent, head, following
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _entrywise_lu(front, m, ns):
+    """Partial LU in place of the first ns pivots of a front (m * m, row-major)."""
+    for k in range(ns):
+        pivot_row = k * m
+        pivot = front[pivot_row + k]
+        for i in range(k + 1, m):
+            row = i * m
+            factor = front[row + k] / pivot
+            front[row + k] = factor
+            if factor != 0.0:
+                for j in range(k + 1, m):
+                    front[row + j] -= factor * front[pivot_row + j]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _panel_lu(front, m, ns, work):
+    """Partial LU in place of the first ns pivots of a front (m, m): column panels of PANEL pivots, each factorized
+    entry-wise, its rows of U by forward substitution, and the rest of the front updated by one matrix product
+    in blocks of UPDATE_ROWS rows (``work``: scratch of at least (2 PANEL + UPDATE_ROWS) m entries)."""
+    for k0 in range(0, ns, PANEL):
+        k1 = min(k0 + PANEL, ns)
+        for k in range(k0, k1):
+            pivot = front[k, k]
+            for i in range(k + 1, m):
+                factor = front[i, k] / pivot
+                front[i, k] = factor
+                if factor != 0.0:
+                    for j in range(k + 1, k1):
+                        front[i, j] -= factor * front[k, j]
+        if k1 == m:
+            return
+        for k in range(k0, k1):
+            for i in range(k + 1, k1):
+                factor = front[i, k]
+                if factor != 0.0:
+                    for j in range(k1, m):
+                        front[i, j] -= factor * front[k, j]
+        rest, width = m - k1, k1 - k0
+        right = work[: width * rest].reshape((width, rest))
+        right[:] = front[k0:k1, k1:]
+        for r0 in range(k1, m, UPDATE_ROWS):
+            r1 = min(r0 + UPDATE_ROWS, m)
+            left = work[width * rest : width * rest + (r1 - r0) * width].reshape((r1 - r0, width))
+            product = work[width * (rest + r1 - r0) : width * (rest + r1 - r0) + (r1 - r0) * rest]
+            left[:] = front[r0:r1, k0:k1]
+            np.dot(left, right, product.reshape((r1 - r0, rest)))
+            for i in range(r1 - r0):
+                for j in range(rest):
+                    front[r0 + i, k1 + j] -= product[i * rest + j]
+
+
+@numba.njit(cache=True)
+def _assemble_front(front, m, s, csc, csr, order, inv, first, loc):
+    """The matrix entries of supernode s's columns (rows from its first column on) and rows (columns after it)."""
+    f, last = first[s], first[s + 1]
+    for j in range(f, last):
+        col, cj = order[j], j - f
+        for p in range(csc[0][col], csc[0][col + 1]):
+            i = inv[csc[1][p]]
+            if i >= f:
+                front[loc[i] * m + cj] += csc[2][p]
+        for p in range(csr[0][col], csr[0][col + 1]):
+            i = inv[csr[1][p]]
+            if i >= last:
+                front[cj * m + loc[i]] += csr[2][p]
+
+
+@numba.njit(cache=True)
+def _extend_add(front, m, update, nc, rows, loc, rel):
+    """Adds a child's update matrix (nc * nc, on its update rows) into the front at the rows' places."""
+    for a in range(nc):
+        rel[a] = loc[rows[a]]
+    for a in range(nc):
+        target, source = rel[a] * m, a * nc
+        for b in range(nc):
+            front[target + rel[b]] += update[source + b]
+
+
+@numba.njit(cache=True)
+def _store(front, m, ns, nu, s, factors, offsets):
+    """Copies the factorized front's diagonal block (LU packed), L21 and U12 into the factors."""
+    diag, lower, upper = factors
+    d, lu = offsets[0][s], offsets[1][s]
+    for a in range(ns):
+        for b in range(ns):
+            diag[d + a * ns + b] = front[a * m + b]
+    for a in range(nu):
+        for b in range(ns):
+            lower[lu + a * ns + b] = front[(ns + a) * m + b]
+    for a in range(ns):
+        for b in range(nu):
+            upper[lu + a * nu + b] = front[a * m + ns + b]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, factors, offsets, mmax):
+    """Factorizes the supernodes ``seq`` (increasing; each one's children either in ``seq`` before it or with
+    their update matrix in ``ext`` at ``ext_off``); a supernode with ext_off >= 0 leaves its update there, the
+    others on a stack that its parent in ``seq`` reads."""
+    flat, off, head, following = tree
+    n = len(order)
+    buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.empty(n, np.int64)
+    work = np.empty((2 * PANEL + UPDATE_ROWS) * mmax)
+    stack, tops, depth = np.empty(1 << 16), np.zeros(len(seq) + 1, np.int64), 0
+    for s in seq:
+        f, last = first[s], first[s + 1]
+        ns, nu = last - f, off[s + 1] - off[s]
+        m = ns + nu
+        front = buffer[: m * m]
+        front[:] = 0.0
+        for j in range(f, last):
+            loc[j] = j - f
+        for q in range(nu):
+            loc[flat[off[s] + q]] = ns + q
+        _assemble_front(front, m, s, csc, csr, order, inv, first, loc)
+        stacked = 0
+        c = head[s]
+        while c != -1:
+            stacked += ext_off[c] < 0
+            c = following[c]
+        depth -= stacked
+        t, c = depth, head[s]
+        while c != -1:
+            nc = off[c + 1] - off[c]
+            rows = flat[off[c] : off[c + 1]]
+            if ext_off[c] >= 0:
+                _extend_add(front, m, ext[ext_off[c] : ext_off[c] + nc * nc], nc, rows, loc, rel)
+            else:
+                _extend_add(front, m, stack[tops[t] : tops[t] + nc * nc], nc, rows, loc, rel)
+                t += 1
+            c = following[c]
+        if m >= BLOCKED_MIN and ns >= 8:
+            _panel_lu(front.reshape((m, m)), m, ns, work)
+        else:
+            _entrywise_lu(front, m, ns)
+        _store(front, m, ns, nu, s, factors, offsets)
+        if nu == 0:
+            continue
+        if ext_off[s] >= 0:
+            target = ext[ext_off[s] : ext_off[s] + nu * nu]
+        else:
+            need = tops[depth] + nu * nu
+            if need > len(stack):
+                grown = np.empty(max(len(stack) + len(stack) // 4, need))
+                grown[: tops[depth]] = stack[: tops[depth]]
+                stack = grown
+            target = stack[tops[depth] : need]
+            depth += 1
+            tops[depth] = need
+        for a in range(nu):
+            source = (ns + a) * m + ns
+            target[a * nu : (a + 1) * nu] = front[source : source + nu]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _solve(first, flat, off, factors, offsets, b):
+    """Solves L U x = b in place (b (n, k) in the factor's order): forward through the supernodes, then back."""
+    diag, lower, upper = factors
+    nsup, k = len(first) - 1, b.shape[1]
+    for s in range(nsup):
+        f, ns, nu = first[s], first[s + 1] - first[s], off[s + 1] - off[s]
+        d, lu = offsets[0][s], offsets[1][s]
+        for a in range(ns):
+            for q in range(a):
+                w = diag[d + a * ns + q]
+                for r in range(k):
+                    b[f + a, r] -= w * b[f + q, r]
+        for a in range(nu):
+            i = flat[off[s] + a]
+            for q in range(ns):
+                w = lower[lu + a * ns + q]
+                for r in range(k):
+                    b[i, r] -= w * b[f + q, r]
+    for s in range(nsup - 1, -1, -1):
+        f, ns, nu = first[s], first[s + 1] - first[s], off[s + 1] - off[s]
+        d, lu = offsets[0][s], offsets[1][s]
+        for a in range(ns - 1, -1, -1):
+            for q in range(nu):
+                w = upper[lu + a * nu + q]
+                i = flat[off[s] + q]
+                for r in range(k):
+                    b[f + a, r] -= w * b[i, r]
+            for q in range(a + 1, ns):
+                w = diag[d + a * ns + q]
+                for r in range(k):
+                    b[f + a, r] -= w * b[f + q, r]
+            pivot = diag[d + a * ns + a]
+            for r in range(k):
+                b[f + a, r] /= pivot
+
+
+@numba.njit(cache=True)
+def _all_finite(values):
+    for v in values:
+        if not np.isfinite(v):
+            return False
+    return True
+
+
+def _work(first, off) -> np.ndarray:
+    """Floating-point operations (roughly) of each supernode's front: its partial LU, the update, the assembly."""
+    ns = np.diff(first).astype(float)
+    nu = np.diff(off).astype(float)
+    return 2 / 3 * ns**3 + 2 * ns**2 * nu + 2 * ns * nu**2 + (ns + nu) ** 2
+
+
+@numba.njit(cache=True)
+def _subtrees(sparent, work):
+    """Each supernode's subtree: its work and its number of supernodes (children come before parents)."""
+    total, size = work.copy(), np.ones(len(work), np.int64)
+    for s in range(len(work)):
+        if sparent[s] != -1:
+            total[sparent[s]] += total[s]
+            size[sparent[s]] += size[s]
+    return total, size
+
+
+def _balance(candidates, total, threads):
+    """The candidates' subtrees given to the least loaded thread, largest first: (bins of roots, largest load)."""
+    loads, bins = [0.0] * threads, [[] for _ in range(threads)]
+    for s in sorted(candidates, key=lambda s: -total[s]):
+        k = int(np.argmin(loads))
+        loads[k] += total[s]
+        bins[k].append(s)
+    return bins, max(loads)
+
+
+def _schedule(first, off, sparent, threads, splits=SCHEDULE_SPLITS):
+    """Subtrees for the threads and the top of the tree for after them.
+
+    Returns ``bins`` (one increasing array of supernodes per thread), ``top`` (the rest, increasing) and
+    ``roots`` (the subtrees' roots, whose update matrices pass from the threads to the top).
+    Starting from the roots, the largest subtree is split into its children (its root joins the top), up to
+    ``splits`` times; of these, the cut with the least estimated time (the top's work plus the most loaded thread's)
+    is kept.
+    """
+    work = _work(first, off)
+    total, size = _subtrees(sparent, work)
+    by_parent = np.argsort(sparent, kind="stable")
+    starts = np.searchsorted(sparent[by_parent], np.arange(len(work) + 1))
+    candidates, top = [int(s) for s in np.flatnonzero(sparent == -1)], []
+    best = (np.inf, None, None)
+    for _ in range(splits + 1):
+        bins, load = _balance(candidates, total, threads)
+        estimate = load + sum(work[s] for s in top)
+        if estimate < best[0]:
+            best = (estimate, bins, list(top))
+        largest = max(candidates, key=lambda s: total[s])
+        kids = by_parent[starts[largest] : starts[largest + 1]]
+        if len(kids) == 0:
+            break
+        candidates.remove(largest)
+        top.append(largest)
+        candidates += [int(c) for c in kids]
+    _, bins, top = best
+    ranges = [[np.arange(s - size[s] + 1, s + 1) for s in b] for b in bins]
+    seqs = [np.sort(np.concatenate(r)) if r else np.zeros(0, np.int64) for r in ranges]
+    roots = np.array([s for b in bins for s in b], np.int64)
+    return seqs, np.sort(np.array(top, np.int64)), roots
+
+
+class MultifrontalLU:
+    """The LU factors of a sparse square matrix that needs no pivoting (an M-matrix, a symmetric positive definite
+    matrix), by the multifrontal method; :meth:`solve` solves A x = b.
+
+    Parameters
+    ----------
+    a : sparse matrix (n, n)
+        Its pattern should be (nearly) symmetric: the fronts follow the pattern of A + A^T.
+    order : (n,) int array, optional
+        The elimination order; :func:`~meshreg.mesh.ordering.minimum_degree` of A by default.
+    threads : int
+        Subtrees factorized side by side (THREADS); matrices under THREADS_MIN unknowns use one.
+
+    Raises
+    ------
+    ZeroDivisionError
+        When a pivot is zero or the factors are not finite (the caller may pivot: :class:`Factorization`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import scipy.sparse as sp
+    >>> a = sp.diags([-1.0, 2.5, -1.0], [-1, 0, 1], shape=(50, 50)).tocsc()
+    >>> x = MultifrontalLU(a).solve(np.ones(50))
+    >>> bool(np.allclose(a @ x, 1.0))
+    True
+    """
+
+    def __init__(self, a: sp.spmatrix, order: np.ndarray | None = None, threads: int = THREADS):
+        a = sp.csc_matrix(a, dtype=float)
+        n = a.shape[0]
+        self.n = n
+        order = minimum_degree(a) if order is None else np.asarray(order, np.int64)
+        csc = (a.indptr.astype(np.int64), a.indices.astype(np.int64), a.data)
+        rows_major = a.tocsr()
+        csr = (rows_major.indptr.astype(np.int64), rows_major.indices.astype(np.int64), rows_major.data)
+        ptr, rows = _symmetric_pattern(csc[0], csc[1], n)
+        parent = _etree(ptr, rows, order, _inverse(order))
+        post = _postorder(parent, np.ones(n, np.int64), n)
+        order, parent = order[post], _relabel(parent, post)
+        inv = _inverse(order)
+        first = _supernodes(parent, _column_counts(ptr, rows, order, inv, parent))
+        flat, off, sparent, head, following = _structure(ptr, rows, order, inv, first, parent)
+        ns, nu = np.diff(first), np.diff(off)
+        offsets = (np.r_[0, np.cumsum(ns * ns)], np.r_[0, np.cumsum(ns * nu)])
+        factors = (np.empty(offsets[0][-1]), np.empty(offsets[1][-1]), np.empty(offsets[1][-1]))
+        self.order, self.first, self.flat, self.off = order, first, flat, off
+        self.factors, self.offsets = factors, offsets
+        common = (csc, csr, order, inv, first, (flat, off, head, following))
+        mmax = int((ns + nu).max()) if n else 0
+        if threads > 1 and n >= THREADS_MIN:
+            bins, top, roots = _schedule(first, off, sparent, threads)
+        else:
+            bins, top, roots = [], np.arange(len(ns)), np.zeros(0, np.int64)
+        ext_off = np.full(len(ns), -1, np.int64)
+        ext_off[roots] = np.r_[0, np.cumsum(nu[roots] ** 2)][:-1]
+        ext = np.empty(int((nu[roots] ** 2).sum()))
+        run = [(b, ext_off, ext, factors, offsets, mmax) for b in bins]
+        if run:
+            with ThreadPoolExecutor(len(run) - 1 or 1) as pool:
+                pending = [pool.submit(_factor_sequence, *common, *r) for r in run[1:]]
+                _factor_sequence(*common, *run[0])
+                for job in pending:
+                    job.result()
+        _factor_sequence(*common, top, ext_off, ext, factors, offsets, mmax)
+        if not all(_all_finite(part) for part in factors):
+            raise ZeroDivisionError("a zero or non-finite pivot in the multifrontal LU")
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """x (n,) or (n, k) with A x = b."""
+        b = np.asarray(b, dtype=float)
+        work = np.ascontiguousarray(b.reshape(self.n, -1)[self.order])
+        _solve(self.first, self.flat, self.off, self.factors, self.offsets, work)
+        x = np.empty_like(work)
+        x[self.order] = work
+        return x.reshape(b.shape)

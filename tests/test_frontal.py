@@ -1,0 +1,104 @@
+"""The multifrontal LU against scipy's solvers: mesh Laplacians, odd patterns, both thread schedules, pivoting."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial import Delaunay
+
+from meshreg.mesh import frontal
+from meshreg.mesh.frontal import MultifrontalLU
+from meshreg.mesh.harmonic import Factorization
+
+
+def _planar_m_matrix(points: int, seed: int) -> sp.csc_matrix:
+    """A non-symmetric M-matrix on the Delaunay graph of random points: random positive couplings, each row's
+    diagonal their sum plus a little (like a mesh Laplacian's interior block)."""
+    rng = np.random.default_rng(seed)
+    tri = Delaunay(rng.random((points, 2))).simplices
+    i = np.concatenate([tri[:, 0], tri[:, 1], tri[:, 2], tri[:, 1], tri[:, 2], tri[:, 0]])
+    j = np.concatenate([tri[:, 1], tri[:, 2], tri[:, 0], tri[:, 0], tri[:, 1], tri[:, 2]])
+    w = sp.csr_matrix((rng.uniform(0.01, 1.0, len(i)), (i, j)), shape=(points, points))
+    w.sum_duplicates()
+    diag = np.asarray(w.sum(axis=1)).ravel() + rng.uniform(1e-3, 1e-2, points)
+    return (sp.diags(diag) - w).tocsc()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_solves_a_planar_m_matrix_like_superlu(seed):
+    a = _planar_m_matrix(3000, seed)
+    rhs = np.random.default_rng(seed).random((3000, 2))
+    x = MultifrontalLU(a).solve(rhs)
+    assert np.abs(a @ x - rhs).max() < 1e-10 * np.abs(rhs).max() * spla.norm(a, np.inf)
+    assert np.allclose(x, spla.spsolve(a, rhs), rtol=1e-9, atol=1e-12)
+    assert np.allclose(MultifrontalLU(a).solve(rhs[:, 1]), x[:, 1], rtol=0, atol=0)
+
+
+def test_two_threads_give_the_same_bits_as_one(monkeypatch):
+    monkeypatch.setattr(frontal, "THREADS_MIN", 0)
+    a = _planar_m_matrix(6000, 2)
+    rhs = np.random.default_rng(2).random((6000, 2))
+    one = MultifrontalLU(a, threads=1)
+    two = MultifrontalLU(a, threads=2)
+    for part_one, part_two in zip(one.factors, two.factors, strict=True):
+        assert np.array_equal(part_one, part_two)
+    assert np.array_equal(one.solve(rhs), two.solve(rhs))
+    # the threads really split the tree: both got subtrees, and the top is a small part
+    bins, top, roots = frontal._schedule(two.first, two.off, _parents(two), 2)
+    assert all(len(b) > 0 for b in bins) and len(top) < len(two.first) // 10 and len(roots) >= 2
+
+
+def _parents(lu: MultifrontalLU) -> np.ndarray:
+    """Each supernode's parent supernode: the owner of its lowest update row."""
+    nsup = len(lu.first) - 1
+    owner = np.repeat(np.arange(nsup), np.diff(lu.first))
+    rows = [lu.flat[lu.off[s] : lu.off[s + 1]] for s in range(nsup)]
+    return np.array([owner[r.min()] if len(r) else -1 for r in rows])
+
+
+def test_large_fronts_take_the_panel_path():
+    """A dense block of 150 unknowns (one front well over BLOCKED_MIN rows, several PANELs) coupled to a chain."""
+    rng = np.random.default_rng(5)
+    n = 400
+    dense = rng.uniform(-1, 0, (150, 150))
+    a = sp.lil_matrix((n, n))
+    a[250:, 250:] = dense
+    for k in range(n - 1):
+        a[k, k + 1], a[k + 1, k] = -rng.random(), -rng.random()
+    a = a.tocsc()
+    a = (a + sp.diags(np.abs(a).sum(axis=1).A1 + 1.0)).tocsc()
+    lu = MultifrontalLU(a)
+    assert (np.diff(lu.first) + np.diff(lu.off)).max() >= frontal.BLOCKED_MIN + frontal.PANEL
+    rhs = rng.random(n)
+    assert np.allclose(lu.solve(rhs), np.linalg.solve(a.toarray(), rhs), rtol=1e-10, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(1, 40),
+    density=st.floats(0.0, 0.5),
+    symmetric=st.booleans(),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_random_diagonally_dominant_patterns(n, density, symmetric, seed):
+    """Any pattern (non-symmetric, empty rows, dense rows) of a diagonally dominant matrix: the dense answer."""
+    rng = np.random.default_rng(seed)
+    off = sp.random(n, n, density=density, random_state=rng, format="csr")
+    off.data -= 0.5
+    if symmetric:
+        off = off + off.T
+    off.setdiag(0)
+    a = (off + sp.diags(np.abs(off).sum(axis=1).A1 + rng.uniform(0.5, 2.0, n))).tocsc()
+    rhs = rng.standard_normal((n, 3))
+    assert np.allclose(MultifrontalLU(a).solve(rhs), np.linalg.solve(a.toarray(), rhs), rtol=1e-9, atol=1e-10)
+
+
+def test_a_zero_pivot_is_left_to_superlu():
+    """A permutation-like block (zero diagonal) cannot be factorized without pivoting: the multifrontal LU says so
+    and Factorization solves it by SuperLU's partial pivoting."""
+    a = sp.csc_matrix(np.array([[0.0, 2.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 4.0]]))
+    with pytest.raises(ZeroDivisionError):
+        MultifrontalLU(a)
+    assert np.allclose(Factorization(a).solve(np.array([2.0, 3.0, 8.0])), [1.0, 1.0, 2.0])
