@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
 from meshreg.mesh import frontal
-from meshreg.mesh.frontal import MultifrontalLU
+from meshreg.mesh.frontal import MultifrontalLU, analyse
 from meshreg.mesh.harmonic import Factorization
 
 
@@ -40,21 +40,23 @@ def test_two_threads_give_the_same_bits_as_one(monkeypatch):
     monkeypatch.setattr(frontal, "THREADS_MIN", 0)
     a = _planar_m_matrix(6000, 2)
     rhs = np.random.default_rng(2).random((6000, 2))
-    one = MultifrontalLU(a, threads=1)
-    two = MultifrontalLU(a, threads=2)
+    one = MultifrontalLU(a, analyse(a, threads=1))
+    two = MultifrontalLU(a, analyse(a, threads=2))
     for part_one, part_two in zip(one.factors, two.factors, strict=True):
         assert np.array_equal(part_one, part_two)
     assert np.array_equal(one.solve(rhs), two.solve(rhs))
     # the threads really split the tree: both got subtrees, and the top is a small part
-    bins, top, roots = frontal._schedule(two.first, two.off, _parents(two), 2)
-    assert all(len(b) > 0 for b in bins) and len(top) < len(two.first) // 10 and len(roots) >= 2
+    bins, top, roots = two.analysis.schedule
+    assert all(len(b) > 0 for b in bins) and len(top) < len(two.analysis.first) // 10 and len(roots) >= 2
+    assert np.array_equal(np.sort(np.concatenate([*bins, top])), np.arange(len(two.analysis.first) - 1))
+    assert np.all(_parents(two.analysis)[roots] >= 0) and np.isin(_parents(two.analysis)[roots], top).all()
 
 
-def _parents(lu: MultifrontalLU) -> np.ndarray:
-    """Each supernode's parent supernode: the owner of its lowest update row."""
-    nsup = len(lu.first) - 1
-    owner = np.repeat(np.arange(nsup), np.diff(lu.first))
-    rows = [lu.flat[lu.off[s] : lu.off[s + 1]] for s in range(nsup)]
+def _parents(an) -> np.ndarray:
+    """Each supernode's parent supernode (-1 at a root): the owner of its lowest update row."""
+    nsup = len(an.first) - 1
+    owner = np.repeat(np.arange(nsup), np.diff(an.first))
+    rows = [an.flat[an.off[s] : an.off[s + 1]] for s in range(nsup)]
     return np.array([owner[r.min()] if len(r) else -1 for r in rows])
 
 
@@ -70,7 +72,7 @@ def test_large_fronts_take_the_panel_path():
     a = a.tocsc()
     a = (a + sp.diags(np.abs(a).sum(axis=1).A1 + 1.0)).tocsc()
     lu = MultifrontalLU(a)
-    assert (np.diff(lu.first) + np.diff(lu.off)).max() >= frontal.BLOCKED_MIN + frontal.PANEL
+    assert (np.diff(lu.analysis.first) + np.diff(lu.analysis.off)).max() >= frontal.BLOCKED_MIN + frontal.PANEL
     rhs = rng.random(n)
     assert np.allclose(lu.solve(rhs), np.linalg.solve(a.toarray(), rhs), rtol=1e-10, atol=1e-12)
 
@@ -102,3 +104,20 @@ def test_a_zero_pivot_is_left_to_superlu():
     with pytest.raises(ZeroDivisionError):
         MultifrontalLU(a)
     assert np.allclose(Factorization(a).solve(np.array([2.0, 3.0, 8.0])), [1.0, 1.0, 2.0])
+
+
+def test_an_analysis_of_a_wider_pattern_serves_the_matrix():
+    """The harmonic map analyses the pattern of the faces while the weights are computed: any matrix whose
+    entries lie within the analysed pattern (here: a few couplings dropped) is factorized with it."""
+    a = _planar_m_matrix(2000, 4)
+    pattern = a.copy()
+    pattern.data[:] = 1.0
+    thinned = a.tocoo()
+    keep = np.random.default_rng(4).random(thinned.nnz) > 0.1
+    keep |= thinned.row == thinned.col
+    thinned = sp.csc_matrix((thinned.data[keep], (thinned.row[keep], thinned.col[keep])), shape=a.shape)
+    rhs = np.ones(2000)
+    x = MultifrontalLU(thinned, analyse(pattern)).solve(rhs)
+    assert np.allclose(thinned @ x, rhs, rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="analysis of 2000 unknowns"):
+        MultifrontalLU(a[:100, :100], analyse(pattern))

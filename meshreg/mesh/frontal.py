@@ -17,6 +17,7 @@ A matrix with a zero or non-finite pivot in this order is handed to SuperLU, whi
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -30,13 +31,13 @@ BLOCKED_MIN = 48  # fronts of at least this many rows (and 8 pivots) are factori
 # relaxed supernodes: a child supernode merges into its parent (adjacent columns) when the merged one has at most
 # RELAX_SIZES[k] columns and explicit zeros make at most RELAX_ZEROS[k] of its entries (the last size: any)
 RELAX_SIZES = (4, 16, 48)
-RELAX_ZEROS = (1.0, 0.5, 0.1, 0.05)
+RELAX_ZEROS = (1.0, 0.2, 0.02, 0.01)
 THREADS = 2  # subtrees of the elimination tree factorized side by side
 THREADS_MIN = 100_000  # unknowns below which one thread factorizes (at 50k, two were no faster than one)
 SCHEDULE_SPLITS = 64  # subtrees split at most this often when looking for the best balance of the threads
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _inverse(order):
     inv = np.empty(len(order), np.int64)
     for k in range(len(order)):
@@ -44,7 +45,7 @@ def _inverse(order):
     return inv
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _etree(ptr, rows, order, inv):
     """Elimination tree (parent of each column, -1 at a root) of the symmetric pattern (ptr, rows) in ``order``."""
     n = len(order)
@@ -63,7 +64,7 @@ def _etree(ptr, rows, order, inv):
     return parent
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _relabel(parent, post):
     """The tree ``parent`` with node post[k] renamed k."""
     inv = _inverse(post)
@@ -74,7 +75,7 @@ def _relabel(parent, post):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _column_counts(ptr, rows, order, inv, parent):
     """Entries below the diagonal in each column of L (the row subtrees of the elimination tree)."""
     n = len(order)
@@ -103,7 +104,7 @@ def _merges(columns, real, nu):
     return zeros <= RELAX_ZEROS[-1] * stored
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _supernodes(parent, count):
     """First column of each (relaxed) supernode, (nsup + 1,) ending with n: fundamental supernodes (a chain of
     only children whose columns nest), then each merged into its parent when it is the parent's last child and
@@ -143,7 +144,7 @@ def _append(flat, k, value):
     return flat
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _structure(ptr, rows, order, inv, first, parent):
     """Each supernode's update rows (flat, with offsets (nsup + 1,): rows after its columns in its front), its
     parent supernode (-1 at a root) and its children as linked lists (head, following; in increasing order)."""
@@ -391,7 +392,7 @@ def _work(first, off) -> np.ndarray:
     return 2 / 3 * ns**3 + 2 * ns**2 * nu + 2 * ns * nu**2 + (ns + nu) ** 2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _subtrees(sparent, work):
     """Each supernode's subtree: its work and its number of supernodes (children come before parents)."""
     total, size = work.copy(), np.ones(len(work), np.int64)
@@ -446,6 +447,59 @@ def _schedule(first, off, sparent, threads, splits=SCHEDULE_SPLITS):
     return seqs, np.sort(np.array(top, np.int64)), roots
 
 
+@dataclass(frozen=True)
+class Analysis:
+    """The symbolic part of a multifrontal LU, which depends on the matrix's pattern alone (:func:`analyse`).
+
+    Attributes
+    ----------
+    n : int
+        Unknowns.
+    order : ndarray (n,)
+        The elimination order (postordered along the elimination tree); ``inv`` its inverse.
+    first : ndarray (nsup + 1,)
+        First column (in ``order``) of each supernode, ending with n.
+    flat, off : ndarray
+        Each supernode's update rows, flat[off[s]:off[s + 1]].
+    head, following : ndarray (nsup,)
+        Each supernode's children as linked lists.
+    schedule : tuple
+        The threads' subtrees, the top of the tree and the subtrees' roots (:func:`_schedule`).
+    """
+
+    n: int
+    order: np.ndarray
+    inv: np.ndarray
+    first: np.ndarray
+    flat: np.ndarray
+    off: np.ndarray
+    head: np.ndarray
+    following: np.ndarray
+    schedule: tuple
+
+
+def analyse(pattern: sp.spmatrix, order: np.ndarray | None = None, threads: int = THREADS) -> Analysis:
+    """The symbolic analysis of a multifrontal LU of any matrix whose pattern lies within ``pattern`` (n, n) (the
+    pattern of A + A^T is used): the order (:func:`~meshreg.mesh.ordering.minimum_degree` unless given), the
+    elimination tree, the supernodes and their fronts' rows, and the threads' subtrees (one thread under
+    THREADS_MIN unknowns). It needs no values, so it can run while the values are computed."""
+    pattern = sp.csc_matrix(pattern)
+    n = pattern.shape[0]
+    order = minimum_degree(pattern) if order is None else np.asarray(order, np.int64)
+    ptr, rows = _symmetric_pattern(pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64), n)
+    parent = _etree(ptr, rows, order, _inverse(order))
+    post = _postorder(parent, np.ones(n, np.int64), n)
+    order, parent = order[post], _relabel(parent, post)
+    inv = _inverse(order)
+    first = _supernodes(parent, _column_counts(ptr, rows, order, inv, parent))
+    flat, off, sparent, head, following = _structure(ptr, rows, order, inv, first, parent)
+    if threads > 1 and n >= THREADS_MIN:
+        schedule = _schedule(first, off, sparent, threads)
+    else:
+        schedule = ([], np.arange(len(first) - 1), np.zeros(0, np.int64))
+    return Analysis(n, order, inv, first, flat, off, head, following, schedule)
+
+
 class MultifrontalLU:
     """The LU factors of a sparse square matrix that needs no pivoting (an M-matrix, a symmetric positive definite
     matrix), by the multifrontal method; :meth:`solve` solves A x = b.
@@ -454,10 +508,8 @@ class MultifrontalLU:
     ----------
     a : sparse matrix (n, n)
         Its pattern should be (nearly) symmetric: the fronts follow the pattern of A + A^T.
-    order : (n,) int array, optional
-        The elimination order; :func:`~meshreg.mesh.ordering.minimum_degree` of A by default.
-    threads : int
-        Subtrees factorized side by side (THREADS); matrices under THREADS_MIN unknowns use one.
+    analysis : Analysis, optional
+        The symbolic analysis (:func:`analyse`) of a pattern that holds A's; of A itself by default.
 
     Raises
     ------
@@ -474,51 +526,42 @@ class MultifrontalLU:
     True
     """
 
-    def __init__(self, a: sp.spmatrix, order: np.ndarray | None = None, threads: int = THREADS):
+    def __init__(self, a: sp.spmatrix, analysis: Analysis | None = None):
         a = sp.csc_matrix(a, dtype=float)
-        n = a.shape[0]
-        self.n = n
-        order = minimum_degree(a) if order is None else np.asarray(order, np.int64)
-        csc = (a.indptr.astype(np.int64), a.indices.astype(np.int64), a.data)
+        self.analysis = analysis = analyse(a) if analysis is None else analysis
+        if a.shape != (analysis.n, analysis.n):
+            raise ValueError(f"a matrix of shape {a.shape} for an analysis of {analysis.n} unknowns")
+        csc = (a.indptr, a.indices, a.data)
         rows_major = a.tocsr()
-        csr = (rows_major.indptr.astype(np.int64), rows_major.indices.astype(np.int64), rows_major.data)
-        ptr, rows = _symmetric_pattern(csc[0], csc[1], n)
-        parent = _etree(ptr, rows, order, _inverse(order))
-        post = _postorder(parent, np.ones(n, np.int64), n)
-        order, parent = order[post], _relabel(parent, post)
-        inv = _inverse(order)
-        first = _supernodes(parent, _column_counts(ptr, rows, order, inv, parent))
-        flat, off, sparent, head, following = _structure(ptr, rows, order, inv, first, parent)
+        csr = (rows_major.indptr, rows_major.indices, rows_major.data)
+        first, off = analysis.first, analysis.off
         ns, nu = np.diff(first), np.diff(off)
-        offsets = (np.r_[0, np.cumsum(ns * ns)], np.r_[0, np.cumsum(ns * nu)])
-        factors = (np.empty(offsets[0][-1]), np.empty(offsets[1][-1]), np.empty(offsets[1][-1]))
-        self.order, self.first, self.flat, self.off = order, first, flat, off
-        self.factors, self.offsets = factors, offsets
-        common = (csc, csr, order, inv, first, (flat, off, head, following))
-        mmax = int((ns + nu).max()) if n else 0
-        if threads > 1 and n >= THREADS_MIN:
-            bins, top, roots = _schedule(first, off, sparent, threads)
-        else:
-            bins, top, roots = [], np.arange(len(ns)), np.zeros(0, np.int64)
+        self.offsets = (np.r_[0, np.cumsum(ns * ns)], np.r_[0, np.cumsum(ns * nu)])
+        self.factors = (np.empty(self.offsets[0][-1]), np.empty(self.offsets[1][-1]), np.empty(self.offsets[1][-1]))
+        tree = (analysis.flat, off, analysis.head, analysis.following)
+        common = (csc, csr, analysis.order, analysis.inv, first, tree)
+        mmax = int((ns + nu).max()) if len(ns) else 0
+        bins, top, roots = analysis.schedule
         ext_off = np.full(len(ns), -1, np.int64)
         ext_off[roots] = np.r_[0, np.cumsum(nu[roots] ** 2)][:-1]
         ext = np.empty(int((nu[roots] ** 2).sum()))
-        run = [(b, ext_off, ext, factors, offsets, mmax) for b in bins]
+        run = [(b, ext_off, ext, self.factors, self.offsets, mmax) for b in bins]
         if run:
             with ThreadPoolExecutor(len(run) - 1 or 1) as pool:
                 pending = [pool.submit(_factor_sequence, *common, *r) for r in run[1:]]
                 _factor_sequence(*common, *run[0])
                 for job in pending:
                     job.result()
-        _factor_sequence(*common, top, ext_off, ext, factors, offsets, mmax)
-        if not all(_all_finite(part) for part in factors):
+        _factor_sequence(*common, top, ext_off, ext, self.factors, self.offsets, mmax)
+        if not all(_all_finite(part) for part in self.factors):
             raise ZeroDivisionError("a zero or non-finite pivot in the multifrontal LU")
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x (n,) or (n, k) with A x = b."""
         b = np.asarray(b, dtype=float)
-        work = np.ascontiguousarray(b.reshape(self.n, -1)[self.order])
-        _solve(self.first, self.flat, self.off, self.factors, self.offsets, work)
+        an = self.analysis
+        work = np.ascontiguousarray(b.reshape(an.n, -1)[an.order])
+        _solve(an.first, an.flat, an.off, self.factors, self.offsets, work)
         x = np.empty_like(work)
-        x[self.order] = work
+        x[an.order] = work
         return x.reshape(b.shape)

@@ -6,6 +6,7 @@ cotangent weights (libigl's harmonic map) as an option (they can flip triangles 
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from functools import cached_property
 
 import numba
@@ -15,9 +16,9 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError
 from .boundary import sharp_corners
-from .frontal import MultifrontalLU
+from .frontal import Analysis, MultifrontalLU, analyse
 from .graph import side_lengths, turn_counts
-from .ordering import minimum_degree, spatial_order
+from .ordering import spatial_order
 from .topology import DiskMesh, loop_segments, triangle_areas
 
 # the fallback SuperLU's relaxed supernode size and panel width (its defaults: 5 and 10). In the minimum degree order
@@ -127,7 +128,7 @@ def _boundary_uv(disk: DiskMesh, corner_pos: np.ndarray) -> np.ndarray:
     return uv
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _weight_triplets(v: np.ndarray, f: np.ndarray, cotangent: bool):
     """Rows, columns and values (6m,) of the edge weights: mean-value weights tan(angle at i / 2) / |e_ij| of the
     edges (i, j) and (i, l) at each corner i, or half the cotangent of the angle at i on the opposite edge (j, l)
@@ -154,7 +155,7 @@ def _weight_triplets(v: np.ndarray, f: np.ndarray, cotangent: bool):
     return rows, cols, vals
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _assemble(rows, cols, vals, place, ni):
     """CSR arrays (indptr, indices, data) of the interior block and of the coupling to the loop of the Laplacian
     diag(W 1) - W, from W's triplets (duplicates add up) and each vertex's ``place``: its row and column among the
@@ -205,12 +206,57 @@ def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tupl
         np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(f, dtype=np.int64), weights == "cotangent"
     )
     ni = len(interior)
-    place = np.empty(len(v), dtype=np.int64)  # row and column of each vertex: the interior first, then the loop
-    place[interior] = np.arange(ni)
-    place[loop] = ni + np.arange(len(loop))
-    bptr, bind, bval, cptr, cind, cval = _assemble(rows, cols, vals, place, ni)
+    bptr, bind, bval, cptr, cind, cval = _assemble(rows, cols, vals, _places(disk, interior), ni)
     block = sp.csr_matrix((bval, bind, bptr), shape=(ni, ni)).tocsc()
     return block, sp.csr_matrix((cval, cind, cptr), shape=(ni, len(loop)))
+
+
+def _places(disk: DiskMesh, interior: np.ndarray) -> np.ndarray:
+    """Row and column (n,) of each vertex in the Laplacian's blocks: the interior first, then the loop."""
+    place = np.empty(len(disk.vertices), dtype=np.int64)
+    place[interior] = np.arange(len(interior))
+    place[disk.boundary] = len(interior) + np.arange(len(disk.boundary))
+    return place
+
+
+@numba.njit(cache=True, nogil=True)
+def _face_pattern(f, place, ni):
+    """CSR arrays (indptr, indices) of the interior block's pattern without its diagonal: the edges of the faces
+    ``f`` (m, 3) between interior vertices (``place`` < ni), both ways, each once."""
+    start = np.zeros(ni + 1, np.int64)
+    for t in range(f.shape[0]):
+        for k in range(3):
+            a, b = place[f[t, k]], place[f[t, (k + 1) % 3]]
+            if a < ni and b < ni:
+                start[a + 1] += 1
+                start[b + 1] += 1
+    for r in range(ni):
+        start[r + 1] += start[r]
+    cols, fill = np.empty(start[ni], np.int64), start[:-1].copy()
+    for t in range(f.shape[0]):
+        for k in range(3):
+            a, b = place[f[t, k]], place[f[t, (k + 1) % 3]]
+            if a < ni and b < ni:
+                cols[fill[a]], cols[fill[b]] = b, a
+                fill[a] += 1
+                fill[b] += 1
+    ptr, mark, size = np.zeros(ni + 1, np.int64), np.full(ni, -1, np.int64), 0
+    for r in range(ni):
+        for p in range(start[r], start[r + 1]):
+            if mark[cols[p]] != r:
+                mark[cols[p]] = r
+                cols[size] = cols[p]
+                size += 1
+        ptr[r + 1] = size
+    return ptr, cols[:size]
+
+
+def interior_pattern(disk: DiskMesh, interior: np.ndarray) -> sp.csr_matrix:
+    """The pattern (ones, (ni, ni)) of the Laplacian's interior block off its diagonal from the faces alone: the
+    edges between interior vertices, whichever the weights (both put a weight on every edge, both ways)."""
+    ni = len(interior)
+    ptr, cols = _face_pattern(np.ascontiguousarray(disk.faces, dtype=np.int64), _places(disk, interior), ni)
+    return sp.csr_matrix((np.ones(len(cols), dtype=np.int8), cols, ptr), shape=(ni, ni))
 
 
 def quarter_corners(disk: DiskMesh, start: float) -> np.ndarray:
@@ -248,13 +294,13 @@ class Factorization:
     diagonal wherever it is nonzero); an exactly singular matrix raises SuperLU's RuntimeError.
     """
 
-    def __init__(self, a: sp.csc_matrix):
+    def __init__(self, a: sp.csc_matrix, analysis: Analysis | None = None):
         a = sp.csc_matrix(a)
-        order = minimum_degree(a)
+        analysis = analyse(a) if analysis is None else analysis
         try:
-            self._lu = MultifrontalLU(a, order)
+            self._lu = MultifrontalLU(a, analysis)
         except ZeroDivisionError:
-            self._lu = _SuperLU(a, order)
+            self._lu = _SuperLU(a, analysis.order)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x (n,) or (n, k) with A x = b."""
@@ -332,9 +378,14 @@ class HarmonicMap:
     @cached_property
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
-        without interior vertices)."""
-        block, coupling = self.assemble()
-        return coupling, factorize(block) if len(self.interior) else None
+        without interior vertices). The LU's ordering and symbolic analysis need only the faces: a second thread
+        computes them while this one computes the weights."""
+        if not len(self.interior):
+            return self.assemble()[1], None
+        with ThreadPoolExecutor(1) as pool:
+            analysis = pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
+            block, coupling = self.assemble()
+            return coupling, Factorization(block, analysis.result())
 
     def __call__(self, corner_pos: np.ndarray):
         """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from

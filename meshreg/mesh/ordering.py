@@ -59,7 +59,7 @@ def _flip(i):
     return -i - 2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _symmetric_pattern(indptr, indices, n):
     """The pattern of A + A^T without the diagonal, as CSC arrays (column pointers, row indices; the rows array
     is longer than its used part), from A's CSC (or CSR) arrays; duplicates merged."""
@@ -95,7 +95,7 @@ def _symmetric_pattern(indptr, indices, n):
     return ptr, rows
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _postorder(parent, nv, n):
     """Postorder (n,) of the assembly tree: ``parent`` of every node (-1 for a root), elements (nv > 0) ordered
     after the variables merged into them."""
@@ -326,7 +326,7 @@ def _finalize(k, pk1, pk2, dk, nvk, left, mindeg, graph, iw, lists):
     return mindeg, p
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _amd(ptr, iw, cnz):
     """Approximate minimum degree on the quotient graph whose adjacency lists are iw[ptr[i]: ptr[i + 1]] (no
     diagonal); returns the parent of every node in the assembly tree (-1 at roots), nv (> 0 for the elements, the
