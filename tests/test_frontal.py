@@ -121,3 +121,36 @@ def test_an_analysis_of_a_wider_pattern_serves_the_matrix():
     assert np.allclose(thinned @ x, rhs, rtol=0, atol=1e-9)
     with pytest.raises(ValueError, match="analysis of 2000 unknowns"):
         MultifrontalLU(a[:100, :100], analyse(pattern))
+
+
+def test_entries_outside_the_analysed_pattern_are_refused():
+    """An analysis serves only matrices within its pattern: an entry outside it has no place in any front."""
+    chain = sp.diags([-1.0, 2.5, -1.0], [-1, 0, 1], shape=(200, 200)).tocsc()
+    wider = chain.tolil()
+    wider[5, 150] = -0.5
+    with pytest.raises(ValueError, match="outside the analysed pattern"):
+        MultifrontalLU(wider.tocsc(), analyse(chain))
+
+
+@pytest.mark.parametrize(
+    "matrix",
+    [
+        np.array([[1.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]]),  # a path's Laplacian: singular
+        np.diag([1.0, 0.0, 2.0]),  # a zero pivot with nothing below it
+    ],
+)
+def test_singular_matrices_raise_instead_of_returning_inf(matrix):
+    """The last pivot of a root front divides nothing during the factorization: it is checked after it, and the
+    matrix goes to SuperLU, which says it is singular."""
+    a = sp.csc_matrix(matrix)
+    with pytest.raises(ZeroDivisionError):
+        MultifrontalLU(a)
+    with pytest.raises(RuntimeError, match="singular"):
+        Factorization(a)
+
+
+def test_an_empty_matrix(monkeypatch):
+    monkeypatch.setattr(frontal, "THREADS_MIN", 0)
+    lu = MultifrontalLU(sp.csc_matrix((0, 0)))
+    assert lu.solve(np.zeros(0)).shape == (0,)
+    assert lu.solve(np.zeros((0, 2))).shape == (0, 2)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import scipy.sparse as sp
+from threadpoolctl import threadpool_limits
 
 from .ordering import _postorder, _symmetric_pattern, minimum_degree
 
@@ -34,6 +35,9 @@ RELAX_SIZES = (4, 16, 48)
 RELAX_ZEROS = (1.0, 0.2, 0.02, 0.01)
 THREADS = 2  # subtrees of the elimination tree factorized side by side
 THREADS_MIN = 100_000  # unknowns below which one thread factorizes (at 50k, two were no faster than one)
+# BLAS threads per matrix product of a front: the fronts are split between our own threads (OpenBLAS's default of
+# two made a 60k-unknown planar block 25% slower, a 3D grid's 7.6 times)
+BLAS_THREADS = 1
 SCHEDULE_SPLITS = 64  # subtrees split at most this often when looking for the best balance of the threads
 
 
@@ -134,14 +138,19 @@ def _supernodes(parent, count):
     return first[: nsup + 1].copy()
 
 
-@numba.njit(cache=True)
-def _append(flat, k, value):
+@numba.njit(cache=True, inline="always")
+def _add_row(flat, k, i, last, mark, s):
+    """Appends row i to supernode s's update rows flat[..k] when it comes after the supernode's columns (``last``)
+    and is not there yet (``mark``); the array grows when full. Returns the array and its new length."""
+    if i < last or mark[i] == s:
+        return flat, k
+    mark[i] = s
     if k >= len(flat):
         grown = np.empty(2 * len(flat) + 16, np.int64)
         grown[:k] = flat[:k]
         flat = grown
-    flat[k] = value
-    return flat
+    flat[k] = i
+    return flat, k + 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -167,19 +176,11 @@ def _structure(ptr, rows, order, inv, first, parent):
         for j in range(first[s], last):
             col = order[j]
             for p in range(ptr[col], ptr[col + 1]):
-                i = inv[rows[p]]
-                if i >= last and mark[i] != s:
-                    mark[i] = s
-                    flat = _append(flat, k, i)
-                    k += 1
+                flat, k = _add_row(flat, k, inv[rows[p]], last, mark, s)
         c = head[s]
         while c != -1:
             for q in range(off[c], off[c + 1]):
-                i = flat[q]
-                if i >= last and mark[i] != s:
-                    mark[i] = s
-                    flat = _append(flat, k, i)
-                    k += 1
+                flat, k = _add_row(flat, k, flat[q], last, mark, s)
             c = following[c]
         off[s + 1] = k
     return flat[:k].copy(), off, sparent, head, following
@@ -239,18 +240,24 @@ def _panel_lu(front, m, ns, work):
 
 @numba.njit(cache=True)
 def _assemble_front(front, m, s, csc, csr, order, inv, first, loc):
-    """The matrix entries of supernode s's columns (rows from its first column on) and rows (columns after it)."""
+    """The matrix entries of supernode s's columns (rows from its first column on) and rows (columns after it);
+    False when an entry falls outside the front (loc < 0: not in the analysed pattern)."""
     f, last = first[s], first[s + 1]
     for j in range(f, last):
         col, cj = order[j], j - f
         for p in range(csc[0][col], csc[0][col + 1]):
             i = inv[csc[1][p]]
             if i >= f:
+                if loc[i] < 0:
+                    return False
                 front[loc[i] * m + cj] += csc[2][p]
         for p in range(csr[0][col], csr[0][col + 1]):
             i = inv[csr[1][p]]
             if i >= last:
+                if loc[i] < 0:
+                    return False
                 front[cj * m + loc[i]] += csr[2][p]
+    return True
 
 
 @numba.njit(cache=True)
@@ -287,7 +294,7 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
     others on a stack that its parent in ``seq`` reads."""
     flat, off, head, following = tree
     n = len(order)
-    buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.empty(n, np.int64)
+    buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.full(n, -1, np.int64)
     work = np.empty((2 * PANEL + UPDATE_ROWS) * mmax)
     stack, tops, depth = np.empty(1 << 16), np.zeros(len(seq) + 1, np.int64), 0
     for s in seq:
@@ -300,7 +307,8 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
             loc[j] = j - f
         for q in range(nu):
             loc[flat[off[s] + q]] = ns + q
-        _assemble_front(front, m, s, csc, csr, order, inv, first, loc)
+        if not _assemble_front(front, m, s, csc, csr, order, inv, first, loc):
+            return False
         stacked = 0
         c = head[s]
         while c != -1:
@@ -322,6 +330,9 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
         else:
             _entrywise_lu(front, m, ns)
         _store(front, m, ns, nu, s, factors, offsets)
+        loc[f:last] = -1
+        for q in range(nu):
+            loc[flat[off[s] + q]] = -1
         if nu == 0:
             continue
         if ext_off[s] >= 0:
@@ -338,6 +349,7 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
         for a in range(nu):
             source = (ns + a) * m + ns
             target[a * nu : (a + 1) * nu] = front[source : source + nu]
+    return True
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -375,6 +387,17 @@ def _solve(first, flat, off, factors, offsets, b):
             pivot = diag[d + a * ns + a]
             for r in range(k):
                 b[f + a, r] /= pivot
+
+
+@numba.njit(cache=True)
+def _pivots_nonzero(diag, first, start):
+    """Whether every pivot (the diagonal of each supernode's packed LU block) is nonzero."""
+    for s in range(len(first) - 1):
+        ns = first[s + 1] - first[s]
+        for a in range(ns):
+            if diag[start[s] + a * ns + a] == 0.0:
+                return False
+    return True
 
 
 @numba.njit(cache=True)
@@ -478,14 +501,14 @@ class Analysis:
     schedule: tuple
 
 
-def analyse(pattern: sp.spmatrix, order: np.ndarray | None = None, threads: int = THREADS) -> Analysis:
-    """The symbolic analysis of a multifrontal LU of any matrix whose pattern lies within ``pattern`` (n, n) (the
-    pattern of A + A^T is used): the order (:func:`~meshreg.mesh.ordering.minimum_degree` unless given), the
-    elimination tree, the supernodes and their fronts' rows, and the threads' subtrees (one thread under
-    THREADS_MIN unknowns). It needs no values, so it can run while the values are computed."""
+def analyse(pattern: sp.spmatrix, threads: int = THREADS) -> Analysis:
+    """The symbolic analysis of a multifrontal LU of any matrix whose entries lie within ``pattern`` (n, n) (the
+    pattern of A + A^T is used): the order (:func:`~meshreg.mesh.ordering.minimum_degree`), the elimination tree,
+    the supernodes and their fronts' rows, and the threads' subtrees (one thread under THREADS_MIN unknowns). It
+    needs no values, so it can run while the values are computed."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
-    order = minimum_degree(pattern) if order is None else np.asarray(order, np.int64)
+    order = minimum_degree(pattern)
     ptr, rows = _symmetric_pattern(pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64), n)
     parent = _etree(ptr, rows, order, _inverse(order))
     post = _postorder(parent, np.ones(n, np.int64), n)
@@ -493,7 +516,7 @@ def analyse(pattern: sp.spmatrix, order: np.ndarray | None = None, threads: int 
     inv = _inverse(order)
     first = _supernodes(parent, _column_counts(ptr, rows, order, inv, parent))
     flat, off, sparent, head, following = _structure(ptr, rows, order, inv, first, parent)
-    if threads > 1 and n >= THREADS_MIN:
+    if threads > 1 and n >= max(THREADS_MIN, 1):
         schedule = _schedule(first, off, sparent, threads)
     else:
         schedule = ([], np.arange(len(first) - 1), np.zeros(0, np.int64))
@@ -515,6 +538,8 @@ class MultifrontalLU:
     ------
     ZeroDivisionError
         When a pivot is zero or the factors are not finite (the caller may pivot: :class:`Factorization`).
+    ValueError
+        When A has entries outside the analysed pattern, or its shape is not the analysis's.
 
     Examples
     --------
@@ -546,21 +571,28 @@ class MultifrontalLU:
         ext_off[roots] = np.r_[0, np.cumsum(nu[roots] ** 2)][:-1]
         ext = np.empty(int((nu[roots] ** 2).sum()))
         run = [(b, ext_off, ext, self.factors, self.offsets, mmax) for b in bins]
+        with threadpool_limits(BLAS_THREADS, user_api="blas"):
+            self._factorize(common, run, top, ext_off, ext, mmax)
+        finite = all(_all_finite(part) for part in self.factors)
+        if not (finite and _pivots_nonzero(self.factors[0], first, self.offsets[0])):
+            raise ZeroDivisionError("a zero or non-finite pivot in the multifrontal LU")
+
+    def _factorize(self, common, run, top, ext_off, ext, mmax):
+        """The threads' subtrees side by side, then the top of the tree."""
         if run:
             with ThreadPoolExecutor(len(run) - 1 or 1) as pool:
                 pending = [pool.submit(_factor_sequence, *common, *r) for r in run[1:]]
-                _factor_sequence(*common, *run[0])
-                for job in pending:
-                    job.result()
-        _factor_sequence(*common, top, ext_off, ext, self.factors, self.offsets, mmax)
-        if not all(_all_finite(part) for part in self.factors):
-            raise ZeroDivisionError("a zero or non-finite pivot in the multifrontal LU")
+                fits = [_factor_sequence(*common, *run[0])] + [job.result() for job in pending]
+            if not all(fits):
+                raise ValueError("the matrix has entries outside the analysed pattern")
+        if not _factor_sequence(*common, top, ext_off, ext, self.factors, self.offsets, mmax):
+            raise ValueError("the matrix has entries outside the analysed pattern")
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x (n,) or (n, k) with A x = b."""
         b = np.asarray(b, dtype=float)
         an = self.analysis
-        work = np.ascontiguousarray(b.reshape(an.n, -1)[an.order])
+        work = np.ascontiguousarray((b[:, None] if b.ndim == 1 else b)[an.order])
         _solve(an.first, an.flat, an.off, self.factors, self.offsets, work)
         x = np.empty_like(work)
         x[an.order] = work

@@ -327,15 +327,16 @@ class _SuperLU:
         return x
 
 
-def factorize(a: sp.csc_matrix) -> Factorization:
+def factorize(a: sp.csc_matrix, analysis: Analysis | None = None) -> Factorization:
     """Sparse LU of a Laplacian-like matrix (the interior block of a mesh Laplacian; an ARAP system).
 
     Both weightings give a matrix that needs no pivoting (mean-value: an M-matrix; cotangent: symmetric
     positive definite), so the factorization keeps the diagonal in an approximate minimum degree order of
     A^T + A (:class:`Factorization`: the multifrontal LU); a zero pivot hands the matrix to SuperLU, which pivots
-    within columns.
+    within columns. ``analysis`` (:func:`~meshreg.mesh.frontal.analyse` of a pattern holding A's) serves every
+    matrix of one pattern.
     """
-    return Factorization(a)
+    return Factorization(a, analysis)
 
 
 class HarmonicMap:

@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from ..rotation import kabsch_stack
 from .align import rigid_step
+from .frontal import analyse
 from .harmonic import factorize
 from .surface import NORMAL_AGREEMENT, Surface, transform_points, vertex_normals
 from .topology import unique_edges
@@ -66,6 +67,7 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarra
     laplacian = incidence @ incidence.T  # the graph Laplacian
     rest_edges = rest[i] - rest[j]
     current = rest.copy()
+    analysis = analyse(laplacian + sp.identity(n))  # every system below has this pattern
     for weight in WARP_WEIGHTS:
         for _ in range(WARP_ROUNDS):
             # a rigid point-to-plane step first: the whole mesh slides along the target, which the per-vertex goals
@@ -81,7 +83,7 @@ def arap_warp(rest: np.ndarray, faces: np.ndarray, target: Surface) -> np.ndarra
             rhs = incidence @ (0.5 * np.einsum("eab,eb->ea", rot[i] + rot[j], rest_edges))
             data = weight * held + 1e-9
             rhs += data[:, None] * np.where(held[:, None], goal, current)
-            current = factorize((laplacian + sp.diags(data)).tocsc()).solve(rhs)
+            current = factorize((laplacian + sp.diags(data)).tocsc(), analysis).solve(rhs)
     return current
 
 
