@@ -9,9 +9,10 @@ positive definite) and passes its Schur complement up the tree. Large fronts are
 trailing update is one matrix product. Independent subtrees are factorized in two threads (the work is numba code
 that releases the GIL); the top of the tree after them.
 
-SuperLU, used before (``scipy.sparse.linalg.splu`` in the same order), spent 1.5-1.7 s on the interior block of a
-1M-triangle terrain mesh: it factorizes column by column (supernodes of 1 were its fastest setting), without BLAS.
-A matrix with a zero or non-finite pivot in this order is handed to SuperLU, which pivots within columns.
+SuperLU, used before (``scipy.sparse.linalg.splu`` in the same order), spent 1.6-2.0 s on the interior block of a
+1M-triangle terrain mesh (500,000 unknowns): it factorizes column by column (supernodes of 1 were its fastest
+setting), without BLAS; this factorization 0.76-0.92 s in two threads (docs/benchmarks.md). A matrix with a zero or
+non-finite pivot in this order is handed to SuperLU, which pivots within columns.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ SCHEDULE_SPLITS = 64  # subtrees split at most this often when looking for the b
 
 @numba.njit(cache=True, nogil=True)
 def _inverse(order):
+    """The inverse (n,) of a permutation (n,)."""
     inv = np.empty(len(order), np.int64)
     for k in range(len(order)):
         inv[order[k]] = k
