@@ -85,6 +85,11 @@ UNITS_RATIO = 1.5
 # units 0.67 / 0.57 and 0.43 / 0.87
 ELASTIC_OVERLAP = 0.3
 UNITS = "a deformed pair that fits as closely at the scale of its areas' ratio as in its own units: not judged"
+# ... and a partial overlap in the meshes' own units is not judged against a warp at the areas' ratio that failed:
+# a random relief sheet (peak to peak 0.1) rolled 90 degrees and scaled 2.5, posed at scale 1, was laid on 9% of the
+# second (57% of the first, "elastic"), while the warp at the areas' ratio, started from a whole registration of the
+# wrong symmetry, slid off the first in its first rigid step (60 edges) and coincided nowhere (RMS inf)
+UNTESTED = "the warp at the scale of the areas' ratio failed: a partial overlap in the meshes' own units is not judged"
 QUICK_SAMPLE = 2000  # points per mesh (spread evenly over its area) that judge the overlap in same_region
 
 
@@ -617,7 +622,13 @@ def _areas_scale(posed: Overlap, second: DiskMesh) -> float | None:
 def _by_units(units: Overlap, areas: Overlap) -> Overlap:
     """Of a deformed pair's warps in its own units (``units``, regime "elastic") and at the scale of its areas' ratio
     (``areas``), the partial overlap when its warp fits UNITS_RATIO times closer (RMS in each warp's edge lengths);
-    else ``areas`` (regime "whole", or "full" if it shows the meshes covering each other: registered whole)."""
+    else ``areas`` (regime "whole", or "full" if it shows the meshes covering each other: registered whole).
+
+    A warp at the areas' ratio whose common region does not coincide (less than COINCIDE_ENOUGH of it within
+    COINCIDE edges: the warp failed, it did not test the pair as one surface in two units) leaves nothing for the
+    partial overlap to beat, and the pose's scale 1 is only a guess: registered whole (reason UNTESTED)."""
+    if not areas.coincide >= COINCIDE_ENOUGH:
+        return replace(areas, regime="whole", reason=UNTESTED)
     if UNITS_RATIO * units.rms["warp"] / units.edge < areas.rms["warp"] / areas.edge:
         return units
     return areas if areas.regime == "full" else replace(areas, regime="whole", reason=UNITS)
