@@ -16,6 +16,7 @@ from meshreg.mesh.align import align, areas_scale
 from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.export import UNMATCHED, colored_outputs
 from meshreg.mesh.overlap import (
+    COVERS,
     UNTESTED,
     Side,
     _by_units,
@@ -400,6 +401,18 @@ def test_a_partial_overlap_is_not_judged_against_a_failed_warp_at_the_areas_rati
     assert judged.regime == "whole" and judged.reason == UNTESTED
     worse = replace(found, regime="whole", rms={"warp": 0.1 * edge}, coincide=1.0)
     assert _by_units(units, worse).regime == "elastic"
+
+
+def test_a_rolled_copy_in_another_unit_that_coincides_over_more_is_not_a_crop_of_it():
+    """A relief sheet (peak to peak 0.1) rolled 90 degrees and scaled 2.5, posed at scale 1: the warp laid 95% of the
+    first on 14% of the second (RMS 0.033 edges) and the warp at the areas' ratio made 73% of each coincide (RMS
+    0.069): UNITS_RATIO kept the partial overlap, most of the second unmatched. One surface in two units explains
+    more of both: registered whole."""
+    p = _rolled((181, 0.1), 90.0, (1500, 2000), 86, (-42.8, -42.7, 1.4), 2.5)
+    mr = register_meshes(p.first, p.second, Options(resolution=41))
+    overlap = mr.result.info["overlap"]
+    assert overlap["regime"] == "whole" and overlap["reason"] == COVERS, overlap["regime"]
+    assert np.median(p.errors(deform.matched_points(mr, len(p.second[0])))) < 0.02
 
 
 def _random_square(inner: int, rim: int, seed: int, scale: float = 1.0, turn=None, noise: float = 0.0):
