@@ -19,7 +19,9 @@ The verdict (:class:`Overlap`.regime):
   not pin the pose (a surface of revolution, a ridge, a flat sheet: a rigid motion slides the meshes along each
   other, and only their rims tell where they are); or only the warp does and the pose changes their scale (a
   deformed pair in different units: a stretched or bent copy of the whole cannot be told from a partial one, so the
-  meshes' own units are taken as the evidence of a partial overlap).
+  meshes' own units are taken as the evidence of a partial overlap); or a partial overlap the warp finds in the
+  meshes' own units when their areas differ is not borne out against one surface in two units (the warp at the
+  areas' ratio failed, fits about as closely, or coincides over more of both meshes: :func:`_by_units`).
 """
 
 from __future__ import annotations
