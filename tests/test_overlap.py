@@ -2,6 +2,7 @@
 left out, and the no-op on meshes that cover the same region. Known answers from meshreg.mesh.deform (pairs with a
 known material map) and from flat meshes whose overlap is known exactly."""
 
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
@@ -14,7 +15,19 @@ from meshreg.mesh import deform
 from meshreg.mesh.align import align, areas_scale
 from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.export import UNMATCHED, colored_outputs
-from meshreg.mesh.overlap import Side, _same_rim, clip, rigid_overlap, same_region, signed_rim_distance, slide, trim
+from meshreg.mesh.overlap import (
+    COVERS,
+    UNTESTED,
+    Side,
+    _by_units,
+    _same_rim,
+    clip,
+    rigid_overlap,
+    same_region,
+    signed_rim_distance,
+    slide,
+    trim,
+)
 from meshreg.mesh.surface import Surface, transform_points
 from meshreg.mesh.topology import prepare_disk, triangle_areas
 from meshreg.result import Registration
@@ -373,6 +386,33 @@ def test_a_warp_that_brings_little_of_either_mesh_together_is_not_a_partial_over
     p = _rolled((148, 0.0349), 102.31, (1367, 828), 48, (31.608, -10.596, -58.304), 0.7227)
     mr = register_meshes(p.first, p.second, Options())
     assert mr.result.info["overlap"]["regime"] in ("whole", "full")
+
+
+def test_a_partial_overlap_is_not_judged_against_a_failed_warp_at_the_areas_ratio():
+    """A relief sheet (peak to peak 0.1) rolled 90 degrees and scaled 2.5 was posed at scale 1 and warped onto 9% of
+    the second ("elastic"); the warp at the areas' ratio, started from a whole registration of the wrong symmetry,
+    slid off the first and coincided nowhere (RMS inf), and the partial overlap "fitted closer". A failed warp tests
+    nothing: registered whole. A warp at the areas' ratio that coincides but fits clearly worse still loses."""
+    found = rigid_overlap(*(prepare_disk(*grid_mesh(0.0, x1, 11, relief=0.1)) for x1 in (1.0, 0.6)))
+    edge = found.edge
+    units = replace(found, regime="elastic", rms={"warp": 0.02 * edge}, coincide=1.0)
+    failed = replace(found, regime="whole", rms={"warp": np.inf}, coincide=0.0, reason="no pose or warp")
+    judged = _by_units(units, failed)
+    assert judged.regime == "whole" and judged.reason == UNTESTED
+    worse = replace(found, regime="whole", rms={"warp": 0.1 * edge}, coincide=1.0)
+    assert _by_units(units, worse).regime == "elastic"
+
+
+def test_a_rolled_copy_in_another_unit_that_coincides_over_more_is_not_a_crop_of_it():
+    """A relief sheet (peak to peak 0.1) rolled 90 degrees and scaled 2.5, posed at scale 1: the warp laid 95% of the
+    first on 14% of the second (RMS 0.033 edges) and the warp at the areas' ratio made 73% of each coincide (RMS
+    0.069): UNITS_RATIO kept the partial overlap, most of the second unmatched. One surface in two units explains
+    more of both: registered whole."""
+    p = _rolled((181, 0.1), 90.0, (1500, 2000), 86, (-42.8, -42.7, 1.4), 2.5)
+    mr = register_meshes(p.first, p.second, Options(resolution=41))
+    overlap = mr.result.info["overlap"]
+    assert overlap["regime"] == "whole" and overlap["reason"] == COVERS, overlap["regime"]
+    assert np.median(p.errors(deform.matched_points(mr, len(p.second[0])))) < 0.02
 
 
 def _random_square(inner: int, rim: int, seed: int, scale: float = 1.0, turn=None, noise: float = 0.0):
