@@ -6,9 +6,10 @@ The elastic answer h of such a pair is limited by what the grids resolve (the be
 sqrt(area) off, against 0.0001 for Open3D's nearest points; pymeshlab's face scan against a remeshed copy: 0.15%);
 the rigid overlap path (:mod:`meshreg.mesh.partial`) already matches crops this way to below 5e-5. Here the same is
 done for a pair registered whole in mode "auto" when the ICP pose (a similarity: point-to-plane with a scale, from
-``result.transform``) makes the meshes coincide, RMS at most SNAP_TIGHT edge lengths (a bent pair does not: it is
-left as registered); the snapped h is kept only if its coordinate residual is lower and the refined pose moved the
-points by no more than the answer's residual (ICP slides along what pins a surface weakly).
+``result.transform``) makes the meshes coincide, RMS at most SNAP_TIGHT edge lengths or, for noisy meshes, a residual
+that averages out over neighbourhoods (a bent pair does not: it is left as registered); the snapped h is kept only
+if its coordinate residual is lower and the refined pose moved the points by no more than the answer's residual (ICP
+slides along what pins a surface weakly).
 """
 
 from __future__ import annotations
@@ -32,13 +33,14 @@ SNAP_POINTS = 2000
 # scale is right within 0.2% on the benchmark pairs; a collapsing ICP moves it by orders of magnitude)
 SNAP_SCALE = 0.02
 # a pair above SNAP_TIGHT is still one surface when its residual is incoherent noise: ICP RMS at most SNAP_NOISY edge
-# lengths and the signed residual averaged over each sample's SNAP_NEIGHBOURS nearest samples at most SNAP_TIGHT.
-# Measured on 12 remeshed relief sheets (/tmp/co/msweep_noise.py) with vertex noise 0.003 / 0.005 on the first: RMS
-# 0.04-0.10 / 0.07-0.13 edge lengths, averaged 0.007-0.022 / 0.011-0.032; rolled (10-30 degrees) and folded sheets,
-# noisy or not: RMS 0.2-1.2, averaged 0.8-1.0 of their RMS (a bend's residual does not average out); a noisy sheet
-# registered at the wrong symmetry: RMS 0.21, averaged 0.16
+# lengths and the signed residual averaged over each sample's SNAP_NEIGHBOURS nearest samples at most SNAP_TIGHT and
+# at most SNAP_INCOHERENT of the RMS. Measured on 12 remeshed relief sheets (/tmp/co/msweep_noise.py) with vertex noise
+# 0.003 / 0.005 on the first (or 0.003 on both): RMS 0.065-0.1 / 0.065-0.13 (0.07-0.18) edge lengths, averaged 0.14-0.27
+# of it; rolled (3-30 degrees) and folded sheets: averaged 0.83-1.0 of their RMS (0.06-1.2), with noise 0.003 0.55-1.0
+# (a bend's residual does not average out); a noisy sheet registered at the wrong symmetry: 0.77 of 0.21
 SNAP_NOISY = 0.3
 SNAP_NEIGHBOURS = 64
+SNAP_INCOHERENT = 0.4
 
 
 def snap_rigid(mr, registered: tuple, tried: bool = True):
@@ -95,12 +97,15 @@ def _kept_scale(scale: float, start: np.ndarray) -> bool:
 def _coincide(points: Cloud, first: Surface, rms: float, edge: float) -> bool:
     """Whether the second's sample ``points`` (moved onto the first by the ICP pose, whose RMS is ``rms``) and the
     ``first`` surface coincide: RMS at most SNAP_TIGHT ``edge`` lengths, or at most SNAP_NOISY with the residual's
-    coherent part (:func:`_coherent_rms`) at most SNAP_TIGHT. Vertex noise leaves an RMS about its own size (0.1
-    edge lengths for noise of 0.3% of the size) that mostly averages out over a neighbourhood; a bend leaves a
-    residual that does not."""
+    coherent part (:func:`_coherent_rms`) at most SNAP_TIGHT edge lengths and SNAP_INCOHERENT of the RMS. Vertex
+    noise leaves an RMS about its own size (0.1 edge lengths for noise of 0.3% of the size) that mostly averages out
+    over a neighbourhood; a bend leaves a residual that does not (a sheet rolled by 3 degrees: RMS 0.06 edge
+    lengths, averaged 0.05)."""
     if rms <= SNAP_TIGHT * edge:
         return True
-    return bool(rms <= SNAP_NOISY * edge and _coherent_rms(points, first) <= SNAP_TIGHT * edge)
+    if rms > SNAP_NOISY * edge:
+        return False
+    return bool(_coherent_rms(points, first) <= min(SNAP_TIGHT * edge, SNAP_INCOHERENT * rms))
 
 
 def _coherent_rms(points: Cloud, first: Surface) -> float:
