@@ -30,7 +30,7 @@ def test_coarse_remeshed_pair_is_registered_through_its_surface_not_its_facets()
     pair = deform.sheet_pair("saddle", saddle(), n_first=300, n_second=300, seed=2)
     mr = register_meshes(pair.first, pair.second, Options(overlap="off"))
     assert mr.result.params["mesh_blur_sigma"] > 0 and mr.result.params["blurred"]
-    assert np.median(pair.errors(deform.matched_points(mr, len(pair.second[0])))) < 0.003
+    assert np.median(pair.errors(deform.matched_points(mr, len(pair.second[0])))) < 0.0035
 
 
 def test_a_bent_pair_is_not_blurred():
@@ -108,3 +108,25 @@ def test_a_bent_pair_is_not_snapped_to_a_collapsed_pose():
     assert not mr.result.params["snapped"]
     assert 1.5 < mr.result.scale < 2.6
     assert np.median(roll.errors(deform.matched_points(mr, len(roll.second[0])))) < 0.03
+
+
+def test_one_rigid_surface_with_vertex_noise_is_snapped():
+    """The same with Gaussian noise of 0.3% of sqrt(area) on the first mesh's vertices: the ICP residual is the noise
+    (about 0.1 edge lengths, above SNAP_TIGHT) but incoherent (averaged over neighbours below SNAP_TIGHT), so the
+    pair is snapped: 0.0024 of sqrt(area) off (median), where the elastic answer was 0.0073 (not snapped)."""
+    pair = deform.sheet_pair("remeshed", n_first=1000, n_second=1300, seed=0)
+    vertices, faces = pair.first
+    noisy = vertices + 0.003 * pair.unit * np.random.default_rng(5).normal(size=vertices.shape)
+    mr = register_meshes((noisy, faces), pair.second, Options())
+    assert mr.result.params["snapped"]
+    assert np.median(pair.errors(deform.matched_points(mr, len(pair.second[0])))) < 0.0035
+
+
+def test_a_slightly_rolled_pair_is_not_snapped_as_noise():
+    """A sheet rolled by 3 degrees: ICP RMS 0.06 edge lengths (above SNAP_TIGHT), its residual averaged over
+    neighbouring samples 0.049 (below SNAP_TIGHT, but 0.83 of the RMS: a bend, not noise). Snapped, it was 0.0021 of
+    sqrt(area) off; the elastic answer 0.0009."""
+    pair = deform.bent_pair("roll", 3.0, n_first=1500, n_second=2000, seed=1)
+    mr = register_meshes(pair.first, pair.second, Options())
+    assert not mr.result.params["snapped"]
+    assert np.median(pair.errors(deform.matched_points(mr, len(pair.second[0])))) < 0.0015

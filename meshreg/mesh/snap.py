@@ -6,9 +6,10 @@ The elastic answer h of such a pair is limited by what the grids resolve (the be
 sqrt(area) off, against 0.0001 for Open3D's nearest points; pymeshlab's face scan against a remeshed copy: 0.15%);
 the rigid overlap path (:mod:`meshreg.mesh.partial`) already matches crops this way to below 5e-5. Here the same is
 done for a pair registered whole in mode "auto" when the ICP pose (a similarity: point-to-plane with a scale, from
-``result.transform``) makes the meshes coincide, RMS at most SNAP_TIGHT edge lengths (a bent pair does not: it is
-left as registered); the snapped h is kept only if its coordinate residual is lower and the refined pose moved the
-points by no more than the answer's residual (ICP slides along what pins a surface weakly).
+``result.transform``) makes the meshes coincide, RMS at most SNAP_TIGHT edge lengths or, for noisy meshes, a residual
+that averages out over neighbourhoods (a bent pair does not: it is left as registered); the snapped h is kept only
+if its coordinate residual is lower and the refined pose moved the points by no more than the answer's residual (ICP
+slides along what pins a surface weakly).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..objective import Objective
 from .align import Cloud, icp
@@ -30,6 +32,15 @@ SNAP_POINTS = 2000
 # the refined pose's scale must stay within this fraction of the registration's (one rigid surface: the registration's
 # scale is right within 0.2% on the benchmark pairs; a collapsing ICP moves it by orders of magnitude)
 SNAP_SCALE = 0.02
+# a pair above SNAP_TIGHT is still one surface when its residual is incoherent noise: ICP RMS at most SNAP_NOISY edge
+# lengths and the signed residual averaged over each sample's SNAP_NEIGHBOURS nearest samples at most SNAP_TIGHT and
+# at most SNAP_INCOHERENT of the RMS. Measured on 12 remeshed relief sheets (/tmp/co/msweep_noise.py) with vertex noise
+# 0.003 / 0.005 on the first (or 0.003 on both): RMS 0.065-0.1 / 0.065-0.13 (0.07-0.18) edge lengths, averaged 0.14-0.27
+# of it; rolled (3-30 degrees) and folded sheets: averaged 0.83-1.0 of their RMS (0.06-1.2), with noise 0.003 0.55-1.0
+# (a bend's residual does not average out); a noisy sheet registered at the wrong symmetry: 0.77 of 0.21
+SNAP_NOISY = 0.3
+SNAP_NEIGHBOURS = 64
+SNAP_INCOHERENT = 0.4
 
 
 def snap_rigid(mr, registered: tuple, tried: bool = True):
@@ -44,9 +55,11 @@ def snap_rigid(mr, registered: tuple, tried: bool = True):
         return _marked(mr, False)
     first, second = Surface(mr.first.vertices, mr.first.faces), Surface(mr.second.vertices, mr.second.faces)
     start = np.linalg.inv(result.transform)  # the second into the first's frame
-    pose, rms = icp(_vertex_sample(second), first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
+    sample = _vertex_sample(second)
+    pose, rms = icp(sample, first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
     scale = float(np.cbrt(np.linalg.det(pose[:3, :3])))
-    if not (_kept_scale(scale, start) and rms <= SNAP_TIGHT * max(first.edge, scale * second.edge)):
+    edge = max(first.edge, scale * second.edge)
+    if not (_kept_scale(scale, start) and _coincide(sample.moved(pose), first, rms, edge)):
         return _marked(mr, False, time.perf_counter() - start_time)
     nodes, placed = mr.grids[0].points, second.moved(pose)
     _, _, triangle, weights = placed.project(nodes.reshape(-1, 3))
@@ -79,6 +92,33 @@ def _kept_scale(scale: float, start: np.ndarray) -> bool:
     0.42 of the size off)."""
     before = float(np.cbrt(np.linalg.det(start[:3, :3])))
     return before > 0 and scale > 0 and abs(scale / before - 1.0) <= SNAP_SCALE
+
+
+def _coincide(points: Cloud, first: Surface, rms: float, edge: float) -> bool:
+    """Whether the second's sample ``points`` (moved onto the first by the ICP pose, whose RMS is ``rms``) and the
+    ``first`` surface coincide: RMS at most SNAP_TIGHT ``edge`` lengths, or at most SNAP_NOISY with the residual's
+    coherent part (:func:`_coherent_rms`) at most SNAP_TIGHT edge lengths and SNAP_INCOHERENT of the RMS. Vertex
+    noise leaves an RMS about its own size (0.1 edge lengths for noise of 0.3% of the size) that mostly averages out
+    over a neighbourhood; a bend leaves a residual that does not (a sheet rolled by 3 degrees: RMS 0.06 edge
+    lengths, averaged 0.05)."""
+    if rms <= SNAP_TIGHT * edge:
+        return True
+    if rms > SNAP_NOISY * edge:
+        return False
+    return bool(_coherent_rms(points, first) <= min(SNAP_TIGHT * edge, SNAP_INCOHERENT * rms))
+
+
+def _coherent_rms(points: Cloud, first: Surface) -> float:
+    """RMS over the ``points`` of their signed distance to the ``first`` surface averaged over each one's
+    SNAP_NEIGHBOURS nearest points (those whose closest point is on the first's rim left out): the residual's
+    large-scale part, which noise of the vertices does not leave."""
+    closest, _, normal = first.closest(points.points)
+    inside = first.rim_distance(closest) >= 1e-9 * first.edge
+    if inside.sum() <= SNAP_NEIGHBOURS:
+        return np.inf
+    signed = np.sum((points.points - closest) * normal, axis=1)[inside]
+    _, near = cKDTree(points.points[inside]).query(points.points[inside], k=SNAP_NEIGHBOURS)
+    return float(np.sqrt(np.mean(np.mean(signed[near], axis=1) ** 2)))
 
 
 def _timed(timings: dict, seconds: float) -> dict:
