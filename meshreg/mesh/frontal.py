@@ -289,13 +289,24 @@ def _store(front, m, ns, nu, s, factors, offsets):
             upper[lu + a * nu + b] = front[a * m + ns + b]
 
 
+@numba.njit(cache=True, inline="always")
+def _room(stack, need):
+    """The stack of update matrices, grown (by a quarter, or to ``need``) when shorter than ``need`` entries."""
+    if need <= len(stack):
+        return stack
+    grown = np.empty(max(len(stack) + len(stack) // 4, need))
+    grown[: len(stack)] = stack
+    return grown
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, factors, offsets, mmax):
+def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, factors, offsets):
     """Factorizes the supernodes ``seq`` (increasing; each one's children either in ``seq`` before it or with
     their update matrix in ``ext`` at ``ext_off``); a supernode with ext_off >= 0 leaves its update there, the
-    others on a stack that its parent in ``seq`` reads."""
+    others on a stack that its parent in ``seq`` reads. Its scratch fits the largest front of ``seq``."""
     flat, off, head, following = tree
     n = len(order)
+    mmax = max([first[s + 1] - first[s] + off[s + 1] - off[s] for s in seq]) if len(seq) else 0
     buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.full(n, -1, np.int64)
     work = np.empty((2 * PANEL + UPDATE_ROWS) * mmax)
     stack, tops, depth = np.empty(1 << 16), np.zeros(len(seq) + 1, np.int64), 0
@@ -340,14 +351,10 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
         if ext_off[s] >= 0:
             target = ext[ext_off[s] : ext_off[s] + nu * nu]
         else:
-            need = tops[depth] + nu * nu
-            if need > len(stack):
-                grown = np.empty(max(len(stack) + len(stack) // 4, need))
-                grown[: tops[depth]] = stack[: tops[depth]]
-                stack = grown
-            target = stack[tops[depth] : need]
+            stack = _room(stack, tops[depth] + nu * nu)
+            target = stack[tops[depth] : tops[depth] + nu * nu]
+            tops[depth + 1] = tops[depth] + nu * nu
             depth += 1
-            tops[depth] = need
         for a in range(nu):
             source = (ns + a) * m + ns
             target[a * nu : (a + 1) * nu] = front[source : source + nu]
@@ -567,19 +574,18 @@ class MultifrontalLU:
         self.factors = (np.empty(self.offsets[0][-1]), np.empty(self.offsets[1][-1]), np.empty(self.offsets[1][-1]))
         tree = (analysis.flat, off, analysis.head, analysis.following)
         common = (csc, csr, analysis.order, analysis.inv, first, tree)
-        mmax = int((ns + nu).max()) if len(ns) else 0
         bins, top, roots = analysis.schedule
         ext_off = np.full(len(ns), -1, np.int64)
         ext_off[roots] = np.r_[0, np.cumsum(nu[roots] ** 2)][:-1]
         ext = np.empty(int((nu[roots] ** 2).sum()))
-        run = [(b, ext_off, ext, self.factors, self.offsets, mmax) for b in bins]
+        run = [(b, ext_off, ext, self.factors, self.offsets) for b in bins]
         with threadpool_limits(BLAS_THREADS, user_api="blas"):
-            self._factorize(common, run, top, ext_off, ext, mmax)
+            self._factorize(common, run, top, ext_off, ext)
         finite = all(_all_finite(part) for part in self.factors)
         if not (finite and _pivots_nonzero(self.factors[0], first, self.offsets[0])):
             raise ZeroDivisionError("a zero or non-finite pivot in the multifrontal LU")
 
-    def _factorize(self, common, run, top, ext_off, ext, mmax):
+    def _factorize(self, common, run, top, ext_off, ext):
         """The threads' subtrees side by side, then the top of the tree."""
         if run:
             with ThreadPoolExecutor(len(run) - 1 or 1) as pool:
@@ -587,7 +593,7 @@ class MultifrontalLU:
                 fits = [_factor_sequence(*common, *run[0])] + [job.result() for job in pending]
             if not all(fits):
                 raise ValueError("the matrix has entries outside the analysed pattern")
-        if not _factor_sequence(*common, top, ext_off, ext, self.factors, self.offsets, mmax):
+        if not _factor_sequence(*common, top, ext_off, ext, self.factors, self.offsets):
             raise ValueError("the matrix has entries outside the analysed pattern")
 
     def solve(self, b: np.ndarray) -> np.ndarray:

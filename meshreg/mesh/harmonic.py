@@ -248,7 +248,7 @@ def _face_pattern(f, place, ni):
                 cols[size] = cols[p]
                 size += 1
         ptr[r + 1] = size
-    return ptr, cols[:size]
+    return ptr, cols[:size].copy()  # the buffer held every edge twice
 
 
 def interior_pattern(disk: DiskMesh, interior: np.ndarray) -> sp.csr_matrix:
