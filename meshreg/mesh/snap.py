@@ -30,8 +30,10 @@ SNAP_ITERATIONS = 30  # ICP iterations on the triangles (exact closest points), 
 # 4000 0.25 s and 2000 0.17 s for the whole snap
 SNAP_POINTS = 2000
 # the refined pose's scale must stay within this fraction of the registration's (one rigid surface: the registration's
-# scale is right within 0.2% on the benchmark pairs; a collapsing ICP moves it by orders of magnitude)
-SNAP_SCALE = 0.02
+# scale is right within 0.2% on the benchmark pairs, but 2-5% off with vertex noise of 0.5% of the size on one mesh,
+# whose roughness adds area: two of 12 such sheets were refused at 2%, 0.016-0.017 off, snapped 0.004; a collapsing
+# ICP moves the scale by orders of magnitude)
+SNAP_SCALE = 0.05
 # a pair above SNAP_TIGHT is still one surface when its residual is incoherent noise: ICP RMS at most SNAP_NOISY edge
 # lengths and the signed residual averaged over each sample's SNAP_NEIGHBOURS nearest samples at most SNAP_TIGHT and
 # at most SNAP_INCOHERENT of the RMS. Measured on 12 remeshed relief sheets (/tmp/co/msweep_noise.py) with vertex noise
