@@ -285,7 +285,7 @@ def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
 
 
 class Factorization:
-    """Sparse LU of A in an approximate minimum degree order of A + A^T (:func:`minimum_degree`); :meth:`solve`
+    """Sparse LU of A in an approximate minimum degree order of A + A^T; :meth:`solve`
     solves A x = b.
 
     The multifrontal LU (:class:`~meshreg.mesh.frontal.MultifrontalLU`: supernodes, dense fronts through BLAS,
