@@ -212,12 +212,12 @@ def register_disks(
         infos["second"]["corner_search"] = squares.tried
     for name, report in zip(("first", "second"), squares.reports, strict=True):
         infos[name].update(report)
-    edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
     pinned = options.symmetry if symmetry is None else symmetry
     sigma, used = 0.0, grids
     if options.mode == "auto" and options.bend_window > 0:
+        edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
         finest = options.advanced.refine_triangles * np.mean(edges)
         sigma = blur_sigma(max(edges), options.mesh_blur, n)
         blurred = [blur_grid(g, sigma * (n - 1)) for g in grids] if sigma else None
