@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from functools import partial
+from functools import cache, partial
 
 import numpy as np
 
@@ -133,14 +133,16 @@ def register_bending(
     ranked, close, spare = _ranked_symmetries(first, second, options, symmetry)
     timings["search"] = time.perf_counter() - tic
     area = second.area()
-    use_blurred = blurred is not None and _unbent(blurred[0], blurred[1], blurred[1].area(), close)
+    blurred_fit = None if blurred is None else cache(partial(_start_fit, blurred[0], blurred[1], blurred[1].area()))
+    use_blurred = blurred_fit is not None and _unbent(blurred_fit, close)
     if use_blurred:
         first, second = blurred
         area = second.area()
+    start_fit = blurred_fit if use_blurred else partial(_start_fit, first, second, area)
     window = descent_window(first, options.bend_window)
 
     def descend(k: int) -> BentRun:
-        return _descend(first, second, area, k, window, options, finest, Log(callback, timings))
+        return _descend(first, start_fit(k), area, k, window, options, finest, Log(callback, timings))
 
     chosen, runs = _unmirrored(close, spare, descend)
     k = chosen.symmetry
@@ -271,18 +273,20 @@ def _start_fit(first: GridSurface, second: GridSurface, area: float, k: int) -> 
     return copy, plain, plain.judge(plain.identity)[2].plus
 
 
-def _unbent(first: GridSurface, second: GridSurface, area: float, symmetries: list[int]) -> bool:
+def _unbent(start_fit, symmetries: list[int]) -> bool:
     """Whether the parametrizations' own correspondence fits the points within BLUR_FIT_RESIDUAL under one of the
-    ``symmetries`` (given the blurred grids): one surface, unbent or slightly bent, whose two maps to the square
-    nearly agree, so that a blur on either square is nearly one blur on the surface."""
-    return any(_start_fit(first, second, area, k)[2] <= BLUR_FIT_RESIDUAL for k in symmetries)
+    ``symmetries`` (``start_fit``: :func:`_start_fit` of the blurred grids, by symmetry): one surface, unbent or
+    slightly bent, whose two maps to the square nearly agree, so that a blur on either square is nearly one blur on
+    the surface."""
+    return any(start_fit(k)[2] <= BLUR_FIT_RESIDUAL for k in symmetries)
 
 
-def _descend(first, second, area, k, window, options, finest, log) -> BentRun:
-    """E_w descended from h = the k-th symmetry of the square: with a scale per cell, unless the parametrizations'
-    own correspondence already fits the points (coordinate residual at most RIGID_FIT_RESIDUAL: one unbent surface),
-    where E_w fits rotations only (:class:`~meshreg.local_rotation.LocalObjective`)."""
-    copy, plain, fit = _start_fit(first, second, area, k)
+def _descend(first, start, area, k, window, options, finest, log) -> BentRun:
+    """E_w descended from h = the k-th symmetry of the square (``start``: its :func:`_start_fit`): with a scale per
+    cell, unless the parametrizations' own correspondence already fits the points (coordinate residual at most
+    RIGID_FIT_RESIDUAL: one unbent surface), where E_w fits rotations only
+    (:class:`~meshreg.local_rotation.LocalObjective`)."""
+    copy, plain, fit = start
     make = partial(LocalObjective, window=window, scaled=_bent(fit))
     objective = make(first, copy, area)
     work, nodes = work_objective(objective, first, copy, area, make=make)
