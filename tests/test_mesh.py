@@ -131,6 +131,14 @@ def _annulus():
             "non-manifold",
         ),
         (lambda: (np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]])), "NaN"),
+        (lambda: (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]])), "too small.* 3 vertices"),
+        (  # a fan of three triangles: its two outer ones are boundary ears, and the cleanup leaves one triangle
+            lambda: (
+                np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [-1, 1, 0.0]]),
+                [[0, 1, 2], [0, 2, 3], [0, 3, 4]],
+            ),
+            "too small.*after the cleanup",
+        ),
     ],
 )
 def test_bad_meshes(make, message):

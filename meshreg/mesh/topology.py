@@ -186,7 +186,8 @@ def prepare_disk(
     ------
     InputError
         NaN coordinates, non-manifold edges, a closed surface, several boundary loops (without hole filling), a
-        cleanup that would drop more than MAX_DROPPED of the triangles.
+        cleanup that would drop more than MAX_DROPPED of the triangles, a boundary of fewer than 4 vertices (too
+        small to map to a square).
 
     Examples
     --------
@@ -250,7 +251,14 @@ def _disk(v, f, edges, n: int, ears: np.ndarray, report: list, aliases) -> DiskM
     feet = _ear_feet(v, ears, remap)
     v, f = v[used], remap[f]
     edges = (remap[edges[0]], *edges[1:])  # an increasing renumbering keeps the edge table's order
-    return DiskMesh(v, f, np.array(_single_loop(v, f, edges)), original, report, aliases, feet)
+    loop = np.array(_single_loop(v, f, edges))
+    if len(loop) < 4:
+        after = f" after the cleanup ({'; '.join(report)})" if report else ""
+        raise InputError(
+            f"the mesh is too small to map to a square: its boundary has {len(loop)} vertices{after}, at least 4 "
+            "are needed; give a mesh of more triangles"
+        )
+    return DiskMesh(v, f, loop, original, report, aliases, feet)
 
 
 def _ear_feet(v: np.ndarray, ears: np.ndarray, remap: np.ndarray) -> EarFeet | None:
