@@ -6,7 +6,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
-from meshreg.mesh.graph import edge_table, face_components, triangle_areas, turn_counts
+from meshreg.mesh.graph import edge_table, face_components, neighbourhood_sums, triangle_areas, turn_counts
 from meshreg.mesh.harmonic import HarmonicMap, factorize, laplacian_blocks
 from meshreg.mesh.ordering import minimum_degree, spatial_order
 from meshreg.mesh.resample import _node_range
@@ -45,6 +45,16 @@ def test_face_components_match_scipy(seed):
     expected = connected_components(graph, directed=False)[1][faces[:, 0]]
     assert count == len(np.unique(expected))
     assert np.array_equal(labels[:, None] == labels[None, :], expected[:, None] == expected[None, :])
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_neighbourhood_sums_match_the_sparse_product_to_the_bit(seed):
+    faces = np.vstack([_soup(seed), [[3, 3, 7]]])  # a repeated corner counts once
+    values = np.random.default_rng(seed).normal(size=(len(faces), 3)) * 10.0 ** np.arange(-8, 8, 5.5)
+    incidence = sp.csr_matrix((np.ones(faces.size), (np.repeat(np.arange(len(faces)), 3), faces.ravel())))
+    sharing = incidence @ incidence.T
+    sharing.data[:] = 1.0
+    assert np.array_equal(neighbourhood_sums(faces, values), sharing @ values)
 
 
 def test_triangle_areas():
