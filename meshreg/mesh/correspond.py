@@ -124,7 +124,7 @@ def register_meshes(
         mapped = None if found.regime == "rigid" else squares.result()
     if found.regime == "rigid":
         return register_overlap(disks[0], disks[1], found, n_input, options, infos)
-    whole = register_disks(disks, maps, n_input, infos, options, callback, mapped)
+    whole = register_disks(disks, maps, n_input, infos, options, callback, mapped, (found.target, found.source))
     if found.regime == "deformed":
         matches = whole.result.first.at_uv(whole.matched_uv2)[0]
         found = warped_overlap(disks[0], disks[1], found, matches)
@@ -183,6 +183,7 @@ def register_disks(
     options: Options,
     callback,
     squares: SquareMaps | None = None,
+    surfaces: tuple | None = None,
 ) -> MeshRegistration:
     """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners and
     harmonic maps (:func:`square_maps`), grids, :func:`meshreg.bending.register_bending` or
@@ -199,6 +200,8 @@ def register_disks(
         The preparation report per mesh ("first", "second"), completed here.
     squares : SquareMaps, optional
         :func:`square_maps` of the disks when already computed (else computed here).
+    surfaces : (Surface, Surface), optional
+        The disks as :class:`~meshreg.mesh.surface.Surface` objects, when already built (for the snap).
     """
     infos = {name: dict(info) for name, info in infos.items()}
     squares = square_maps(disks, maps, options) if squares is None else squares
@@ -229,7 +232,7 @@ def register_disks(
     params = {**result.params, "mesh_blur_sigma": sigma if used is not grids else 0.0}
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos), params=params)
     whole = MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, infos)
-    return snap_rigid(whole, tuple(used), tried=options.mode == "auto" and options.bend_window > 0)
+    return snap_rigid(whole, tuple(used), options.mode == "auto" and options.bend_window > 0, surfaces)
 
 
 def json_ready(info: dict) -> dict:

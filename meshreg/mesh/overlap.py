@@ -150,6 +150,8 @@ class Overlap:
         Why the meshes are registered whole although they may not cover the same region (regime "whole").
     target : Surface
         The first disk as a :class:`~meshreg.mesh.surface.Surface` (its queries cached for the next steps).
+    source : Surface
+        The second disk as a :class:`~meshreg.mesh.surface.Surface`, unposed (likewise).
     """
 
     regime: str
@@ -164,6 +166,7 @@ class Overlap:
     seconds: float = 0.0
     reason: str = ""
     target: Surface | None = field(default=None, repr=False, compare=False)
+    source: Surface | None = field(default=None, repr=False, compare=False)
 
     @property
     def edge(self) -> float:
@@ -521,7 +524,7 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
     else:
         regime, reason = "deformed", ""
     seconds = time.perf_counter() - start
-    return Overlap(regime, one, two, alignment, posed.vertices, edges, spread, coincide, slid, seconds, reason, s1)
+    return Overlap(regime, one, two, alignment, posed.vertices, edges, spread, coincide, slid, seconds, reason, s1, s2)
 
 
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
@@ -563,7 +566,7 @@ def same_region(first: Surface, second: Surface, tolerance: float, start: float 
     quick = Alignment(matrix, alignment.rms, alignment.scores, "principal axes (quick check)")
     slid = slide(first, np.ones(len(first.vertices), dtype=bool), rms) / edge  # reported, as by rigid_overlap
     seconds = time.perf_counter() - start
-    return Overlap("full", one, two, quick, posed, edges, {"pose": rms}, coincide, slid, seconds, "", first)
+    return Overlap("full", one, two, quick, posed, edges, {"pose": rms}, coincide, slid, seconds, "", first, second)
 
 
 def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarray) -> Overlap:
@@ -592,7 +595,7 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
         one, two, coincide = posed.first, posed.second, posed.coincide
         regime, reason = _verdict("rigid", one, two, coincide, posed.alignment.scale, posed.slide, posed.edges)
         found = replace(posed, regime=regime, reason=reason, rms=found.rms)
-    elif found.regime == "elastic" and (areas := _areas_scale(posed, second)) is not None:
+    elif found.regime == "elastic" and (areas := _areas_scale(posed)) is not None:
         found = _by_units(found, _warped(first, second, posed, matches, areas))
     return replace(found, seconds=posed.seconds + time.perf_counter() - start)
 
@@ -616,14 +619,16 @@ def _warped(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: np.ndarr
     matrix[:3, 3] += posed.alignment.matrix[:3, :3] @ centre - matrix[:3, :3] @ centre
     alignment = replace(posed.alignment, matrix=matrix)
     rms_all = {**posed.rms, "warp": rms}
-    return Overlap(regime, one, two, alignment, warped, edges, rms_all, coincide, float("nan"), 0.0, reason, target)
+    return Overlap(
+        regime, one, two, alignment, warped, edges, rms_all, coincide, float("nan"), 0.0, reason, target, posed.source
+    )
 
 
-def _areas_scale(posed: Overlap, second: DiskMesh) -> float | None:
+def _areas_scale(posed: Overlap) -> float | None:
     """The scale of one surface in two units: the square root of the meshes' areas' ratio (the other scale of
     :func:`meshreg.mesh.align.align`, :func:`meshreg.mesh.align.areas_scale`); None when it is within SAME_SCALE of
     1."""
-    areas = areas_scale(posed.target, Surface(second.vertices, second.faces))
+    areas = areas_scale(posed.target, posed.source)
     return None if abs(np.log(areas)) <= SAME_SCALE else areas
 
 

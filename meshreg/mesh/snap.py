@@ -45,17 +45,18 @@ SNAP_NEIGHBOURS = 64
 SNAP_INCOHERENT = 0.4
 
 
-def snap_rigid(mr, registered: tuple, tried: bool = True):
+def snap_rigid(mr, registered: tuple, tried: bool = True, surfaces: tuple | None = None):
     """``mr`` (a :class:`~meshreg.mesh.correspond.MeshRegistration` of two meshes registered whole; ``mr.grids``
     the grids as resampled) with h, R, E, the residual and the transform from closest points at the ICP-refined
     pose, when ``tried`` (mode "auto") and the pair is one rigid surface (see the module); else ``mr`` itself.
     E and the residual are measured on ``registered`` (the grids the registration used, blurred or not) at the
     snapped h and the pose's rotation. ``result.params["snapped"]`` says which; ``timings["snap"]`` (in ``total``)
-    is the time spent trying."""
+    is the time spent trying. ``surfaces``: the two disks' :class:`~meshreg.mesh.surface.Surface` objects, unposed, when
+    already built (by the overlap check: their KD-trees are kept); else built here."""
     result, start_time = mr.result, time.perf_counter()
     if not (tried and np.isfinite(result.residual)):
         return _marked(mr, False)
-    first, second = Surface(mr.first.vertices, mr.first.faces), Surface(mr.second.vertices, mr.second.faces)
+    first, second = surfaces or (Surface(d.vertices, d.faces) for d in (mr.first, mr.second))
     start = np.linalg.inv(result.transform)  # the second into the first's frame
     sample = _vertex_sample(second)
     pose, rms = icp(sample, first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
