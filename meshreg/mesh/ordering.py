@@ -332,12 +332,13 @@ def _amd(ptr, iw, cnz):
     diagonal); returns the parent of every node in the assembly tree (-1 at roots), nv (> 0 for the elements, the
     pivots) and True; or False when ``iw`` has too little room after the lists. Names follow the published
     algorithm: elen (elements in a list), nv (supervariable size, negated while in the new element Lk), w
-    (set-difference counters against ``mark``)."""
-    n = len(ptr) - 1
+    (set-difference counters against ``mark``, 64-bit: the marks grow past 32 bits on large graphs). The lists are of
+    ``iw``'s integer type (32-bit halves the memory traffic)."""
+    n, kind = len(ptr) - 1, iw.dtype
     length = ptr[1:] - ptr[:-1]
-    graph = (ptr[:-1].copy(), length, np.ones(n, np.int64), np.ones(n, np.int64), np.zeros(n, np.int64), length.copy())
+    graph = (ptr[:-1].copy(), length, np.ones(n, kind), np.ones(n, np.int64), np.zeros(n, kind), length.copy())
     pe, _, nv, w, elen, degree = graph
-    lists = (np.full(n, -1, np.int64), np.full(n, -1, np.int64), np.full(n, -1, np.int64), np.full(n, -1, np.int64))
+    lists = (np.full(n, -1, kind), np.full(n, -1, kind), np.full(n, -1, kind), np.full(n, -1, kind))
     head, nxt, last, _ = lists
     mark, nel, mindeg, lemax = 2, 0, 0, 0
     for i in range(n):
@@ -359,7 +360,7 @@ def _amd(ptr, iw, cnz):
         if elenk > 0 and cnz + mindeg >= len(iw):
             cnz = _collect_garbage(pe, iw, length, n, cnz)
             if cnz + mindeg >= len(iw):
-                return pe, nv, False
+                return np.full(n, -1, np.int64), nv, False
         dk, pk1, pk2, cnz = _new_element(k, cnz, graph, iw, lists)
         _set_differences(pk1, pk2, mark, graph, iw)
         dk, nvk, nel = _update_degrees(k, pk1, pk2, mark, dk, nvk, nel, graph, iw, lists)
@@ -411,9 +412,11 @@ def minimum_degree(a: sp.spmatrix) -> np.ndarray:
     cnz = int(pe[n])
     # room after the pattern: the quotient graph never needs more than the pattern and n more entries (each new
     # element's list is at most as long as the lists it absorbs, plus garbage collection); cs_amd's 1.2 cnz + 2n
-    iw = np.empty(cnz + cnz // 5 + 2 * n, np.int64)
+    room = cnz + cnz // 5 + 2 * n
+    kind = np.int32 if room < np.iinfo(np.int32).max else np.int64  # the same order, less memory traffic
+    iw = np.empty(room, kind)
     iw[:cnz] = rows[:cnz]
-    parent, nv, done = _amd(pe, iw, cnz)
+    parent, nv, done = _amd(pe.astype(kind), iw, cnz)
     if not done:
         raise AssertionError("minimum_degree: the quotient graph outgrew its workspace")
     order = _postorder(parent, nv, n)
