@@ -385,6 +385,55 @@ def test_seam_slit_in_one_piece_is_welded():
     assert any("filled 1 hole" in line for line in disk.report) and len(disk.boundary) == 4 * n
 
 
+def _slit_sheet():
+    """A grid sheet with a seam cut from its rim (duplicated vertices, welded by the cleanup) and a hole."""
+    n = 12
+    x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1), indexing="ij")
+    v = np.c_[x.ravel(), y.ravel(), 0.3 * np.sin(2 * x.ravel() + y.ravel())]
+    ids = np.arange(len(v)).reshape(n + 1, n + 1)
+    a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
+    f = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    on = np.flatnonzero((np.abs(v[:, 0]) < 1e-9) & (v[:, 1] < -1e-9))
+    copy = np.arange(len(v))
+    copy[on] = len(v) + np.arange(len(on))
+    right = (v[f].mean(axis=1)[:, 0] > 0) & (v[f].mean(axis=1)[:, 1] < 0)
+    holed = np.ones(len(f), dtype=bool)
+    holed[[8 * n + 8, 8 * n + 8 + n * n]] = False
+    return np.vstack([v, v[on]]), np.where(right[:, None], copy[f], f)[holed]
+
+
+@pytest.mark.parametrize("make", [_slit_sheet, lambda: _lattice_triangle(10), lambda: random_disk_mesh(bump(), 400, 5)])
+def test_large_meshes_cleaned_in_space_order_give_the_same_disk(make, monkeypatch):
+    """Meshes of SPACE_ORDER_MIN vertices or more are renumbered along a Morton curve before the cleanup (for the
+    caches): the disk, its map to the square and its references to the input are the same in the input's ids."""
+    from meshreg.mesh import topology
+
+    v, f = make()[:2]
+    plain = prepare_disk(v, f)
+    monkeypatch.setattr(topology, "SPACE_ORDER_MIN", 10)
+    ordered = prepare_disk(v, f)
+    assert not np.array_equal(ordered.vertex_map, plain.vertex_map) and ordered.report == plain.report
+
+    def in_input_ids(disk):
+        ids = np.r_[disk.vertex_map, -1 - np.arange(len(disk.vertices) - len(disk.vertex_map))]  # hole centres < 0
+        loop = ids[disk.boundary]
+        start = int(np.argmin(loop))
+        return {tuple(np.roll(t, -int(np.argmin(t)))) for t in ids[disk.faces]}, np.roll(loop, -start), ids
+
+    faces, loop, ids = in_input_ids(ordered)
+    expected_faces, expected_loop, expected_ids = in_input_ids(plain)
+    assert faces == expected_faces and np.array_equal(loop, expected_loop)  # the same triangles, wound alike
+    assert np.array_equal(ordered.input_ids(ids[ids >= 0]), np.flatnonzero(ids >= 0))
+    back = [d.to_input(d.vertices, len(v), [np.nan] * 3) for d in (ordered, plain)]
+    assert np.array_equal(back[0], back[1], equal_nan=True)
+    feet = [() if d.ear_feet is None else tuple(np.sort(d.ear_feet.ids)) for d in (ordered, plain)]
+    assert feet[0] == feet[1]
+    corners = plain.vertex_map[plain.boundary[[0, 3, 6, 9]]]
+    uv = [parametrize(d, corners=d.input_ids(corners))[0] for d in (ordered, plain)]
+    position = {i: k for k, i in enumerate(expected_ids)}
+    assert np.allclose(uv[0], uv[1][[position[i] for i in ids]], atol=1e-12)
+
+
 def _ellipse_sheet(n_points, seed, rotation=None, scale=1.0):
     """A bent sheet (x, 0.6 sin 2x + 0.1 y^2, y) over a 1.5 x 0.7 ellipse: a random Delaunay mesh with a round
     boundary, nearly symmetric under a half turn (exactly so without the y^2 term)."""
