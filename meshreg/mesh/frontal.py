@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 from threadpoolctl import threadpool_limits
 
-from .ordering import _postorder, _symmetric_pattern, minimum_degree
+from .ordering import _postorder, symmetric_minimum_degree, symmetric_pattern
 
 PANEL = 32  # columns per panel of a large front's factorization (its trailing update is one matrix product)
 UPDATE_ROWS = 256  # rows of a large front's trailing update per matrix product (bounds the scratch memory)
@@ -517,8 +517,8 @@ def analyse(pattern: sp.spmatrix, threads: int = THREADS) -> Analysis:
     needs no values, so it can run while the values are computed."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
-    order = minimum_degree(pattern)
-    ptr, rows = _symmetric_pattern(pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64), n)
+    ptr, rows = symmetric_pattern(pattern)
+    order = symmetric_minimum_degree(pattern, ptr, rows)
     parent = _etree(ptr, rows, order, _inverse(order))
     post = _postorder(parent, np.ones(n, np.int64), n)
     order, parent = order[post], _relabel(parent, post)

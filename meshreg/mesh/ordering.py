@@ -400,9 +400,22 @@ def minimum_degree(a: sp.spmatrix) -> np.ndarray:
     n = a.shape[0]
     if a.shape != (n, n):
         raise ValueError("minimum_degree needs a square matrix")
+    return symmetric_minimum_degree(a, *symmetric_pattern(a))
+
+
+def symmetric_pattern(a: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
+    """The pattern of A + A^T without its diagonal for a square CSC (or CSR) matrix: column pointers (n + 1,) and
+    row indices (longer than their used part), each column's rows in the order that :func:`minimum_degree` breaks
+    its ties by."""
+    return _symmetric_pattern(a.indptr.astype(np.int64), a.indices.astype(np.int64), a.shape[0])
+
+
+def symmetric_minimum_degree(a: sp.csc_matrix, pe: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """:func:`minimum_degree` of the square CSC matrix ``a`` whose :func:`symmetric_pattern` is (``pe``, ``rows``),
+    computed already (a symbolic analysis needs it too)."""
+    n = a.shape[0]
     if n == 0:
         return np.zeros(0, np.int64)
-    pe, rows = _symmetric_pattern(a.indptr.astype(np.int64), a.indices.astype(np.int64), n)
     degree = np.diff(pe)
     dense = degree > max(DENSE_MIN, DENSE_FACTOR * np.sqrt(n))
     if dense.any():
