@@ -54,6 +54,7 @@ def test_neighbourhood_sums_match_the_sparse_product_to_the_bit(seed):
     incidence = sp.csr_matrix((np.ones(faces.size), (np.repeat(np.arange(len(faces)), 3), faces.ravel())))
     sharing = incidence @ incidence.T
     sharing.data[:] = 1.0
+    # to the bit: the kernel follows scipy's order of summation (csr_matmat's rows, last met first)
     assert np.array_equal(neighbourhood_sums(faces, values), sharing @ values)
 
 
@@ -112,6 +113,23 @@ def test_minimum_degree_fills_about_as_little_as_superlus(seed):
     natural = _fill(block, np.arange(block.shape[0]))
     assert _fill(block, order) <= 1.1 * superlu.L.nnz
     assert _fill(block, order) < 0.5 * natural
+
+
+def test_minimum_degree_lists_in_32_and_64_bits_give_one_order():
+    from meshreg.mesh.ordering import _amd, symmetric_pattern
+
+    v, f, _ = random_disk_mesh(bump(), 600, seed=2)
+    disk = prepare_disk(v, f)
+    block = laplacian_blocks(disk, HarmonicMap(disk).interior, "mean-value")[0]
+    pe, rows = symmetric_pattern(block)
+    n, cnz = block.shape[0], int(pe[-1])
+    results = []
+    for kind in (np.int32, np.int64):
+        iw = np.empty(cnz + cnz // 5 + 2 * n, kind)
+        iw[:cnz] = rows[:cnz]
+        results.append(_amd(pe.astype(kind), iw, cnz))
+    assert results[0][2] and results[1][2]
+    assert np.array_equal(results[0][0], results[1][0]) and np.array_equal(results[0][1], results[1][1])
 
 
 def test_minimum_degree_of_odd_patterns():

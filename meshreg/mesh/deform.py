@@ -382,7 +382,7 @@ def parametrization_points(mr, n_second: int, symmetry: int | None = None) -> np
 def material_corners(pair: Pair, mr) -> tuple[tuple, tuple]:
     """Input vertex ids of the first's corners as meshreg chose them, and of the second's boundary vertices
     whose true points are nearest to those corners."""
-    first = tuple(int(mr.first.vertex_map[c]) for c in mr.info["first"]["corners"])
+    first = tuple(int(c) for c in mr.info["first"]["corners"])
     loop = mr.second.boundary[mr.second.boundary < len(mr.second.vertex_map)]
     ids = mr.second.vertex_map[loop]
     known = np.isfinite(pair.truth[ids, 0])

@@ -517,6 +517,8 @@ def analyse(pattern: sp.spmatrix, threads: int = THREADS) -> Analysis:
     needs no values, so it can run while the values are computed."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
+    if pattern.shape != (n, n):
+        raise ValueError("analyse needs a square pattern")
     ptr, rows = symmetric_pattern(pattern)
     order = symmetric_minimum_degree(pattern, ptr, rows)
     parent = _etree(ptr, rows, order, _inverse(order))

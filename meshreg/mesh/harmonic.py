@@ -391,7 +391,8 @@ class HarmonicMap:
     def __call__(self, corner_pos: np.ndarray):
         """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from
         the one that goes to (0, 0), wrapping around the loop's end), and an
-        info dict: ``corners`` (vertex ids), ``flipped`` and ``degenerate`` (triangle counts after mapping)."""
+        info dict: ``corners`` (ids in the mesh as given, -1 for a corner the input does not have: a cut point of a
+        trimmed disk), ``flipped`` and ``degenerate`` (triangle counts after mapping)."""
         disk = self.disk
         f, loop = disk.faces, disk.boundary
         uv = np.zeros((len(disk.vertices), 2))
@@ -400,7 +401,9 @@ class HarmonicMap:
         if lu is not None:
             uv[self.interior] = lu.solve(-(coupling @ uv[loop]))
         _, negative, degenerate = turn_counts(uv, f)
-        info = {"corners": loop[corner_pos].tolist(), "flipped": negative, "degenerate": degenerate}
+        known = loop[corner_pos] < len(disk.vertex_map)  # a cut point of a trimmed disk has no input id: -1
+        ids = np.where(known, disk.vertex_map[np.minimum(loop[corner_pos], len(disk.vertex_map) - 1)], -1)
+        info = {"corners": ids.tolist(), "flipped": negative, "degenerate": degenerate}
         return np.clip(uv, 0.0, 1.0), info
 
 
@@ -411,7 +414,7 @@ def parametrize(disk: DiskMesh, *, corners=None, start: int | None = None, weigh
     -------
     uv : ndarray (n, 2)
     info : dict
-        ``corners`` (vertex ids), ``flipped`` and ``degenerate`` (triangle counts after mapping).
+        ``corners`` (ids in the mesh as given), ``flipped`` and ``degenerate`` (triangle counts after mapping).
 
     Examples
     --------

@@ -411,8 +411,21 @@ def symmetric_pattern(a: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
 
 
 def symmetric_minimum_degree(a: sp.csc_matrix, pe: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """:func:`minimum_degree` of the square CSC matrix ``a`` whose :func:`symmetric_pattern` is (``pe``, ``rows``),
-    computed already (a symbolic analysis needs it too)."""
+    """:func:`minimum_degree` of a matrix whose :func:`symmetric_pattern` is computed already (a symbolic analysis
+    needs it too).
+
+    Parameters
+    ----------
+    a : csc_matrix (n, n)
+        The matrix (its submatrices are ordered again when it has hubs).
+    pe, rows : ndarray (n + 1,), ndarray
+        Its :func:`symmetric_pattern`.
+
+    Returns
+    -------
+    ndarray (n,)
+        The unknowns in the order to eliminate them.
+    """
     n = a.shape[0]
     if n == 0:
         return np.zeros(0, np.int64)

@@ -659,8 +659,8 @@ def _least_covered(found: Overlap) -> float:
 
 def trim(disk: DiskMesh, signed: np.ndarray) -> tuple[DiskMesh, sp.csr_matrix]:
     """The disk cut to where ``signed`` >= 0, cleaned into a disk (largest piece, holes filled), its vertices that
-    come from the disk as given first (in the order of their input ids, so that :meth:`DiskMesh.to_input` and
-    :meth:`DiskMesh.input_ids` keep working), then cut points and hole-filling vertices.
+    come from the disk as given first (in the order of their input ids), then cut points and hole-filling
+    vertices.
 
     Returns the trimmed disk and the matrix (k, n) carrying per-vertex values of ``disk`` to its vertices (a
     hole-filling vertex gets the mean of its ring)."""

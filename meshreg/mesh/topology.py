@@ -109,7 +109,8 @@ class DiskMesh:
         Vertex indices of the boundary loop, in the order that makes the faces' orientation positive.
     vertex_map : ndarray (k,), k <= n
         Index in the mesh as given of each of the first k vertices (cleanup may drop vertices); the
-        n - k vertices after them were added by hole filling (one at the centre of each filled hole).
+        n - k vertices after them were added by hole filling (one at the centre of each filled hole). Increasing,
+        except for a mesh cleaned in space order (SPACE_ORDER_MIN vertices or more, see :func:`prepare_disk`).
     report : list of str
         What the cleanup did.
     aliases : ndarray (n_input,) or None
@@ -206,10 +207,7 @@ def prepare_disk(
     'filled 1 hole (32 boundary vertices)'
     """
     fill_holes = cleanup if fill_holes is None else fill_holes
-    v, f = _checked_arrays(vertices, faces)
-    order = spatial_order(v) if len(v) >= SPACE_ORDER_MIN else None
-    if order is not None:
-        v, f = v[order], _relabelled(f, order)
+    v, f, order = _space_ordered(*_checked_arrays(vertices, faces))
     given, report = f, []
     f = _drop_degenerate(v, f, cleanup, report)
     edges = _edges(f)  # recomputed only when a step changes the faces
@@ -231,6 +229,15 @@ def prepare_disk(
         _kept_enough(v, given, len(f) - rim, report)
     disk = _disk(v, f, edges, n, ears, report, aliases)
     return disk if order is None else _input_numbered(disk, order)
+
+
+def _space_ordered(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A mesh of SPACE_ORDER_MIN vertices or more renumbered along a Morton curve (:func:`_relabelled`) and the
+    order (input id of each new vertex); a smaller one as it is, and None."""
+    if len(v) < SPACE_ORDER_MIN:
+        return v, f, None
+    order = spatial_order(v)
+    return v[order], _relabelled(f, order), order
 
 
 @numba.njit(cache=True)
