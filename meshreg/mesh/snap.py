@@ -1,12 +1,11 @@
 """Snap the answer for one rigid surface to closest points: when two meshes are one surface moved rigidly (and scaled),
-the registration's similarity is refined by point-to-plane ICP on the triangles (at the registration's scale, or with a
-scale where one mesh's vertices lie on the other's triangles: :func:`_refined`), and each node of the first grid is
+the registration's similarity is refined by point-to-plane ICP on the triangles, and each node of the first grid is
 matched with its closest point on the second mesh in that pose.
 
 The elastic answer h of such a pair is limited by what the grids resolve (the benchmark's remeshed sheet: 0.0014 of
 sqrt(area) off, against 0.0001 for Open3D's nearest points; pymeshlab's face scan against a remeshed copy: 0.15%);
 the rigid overlap path (:mod:`meshreg.mesh.partial`) already matches crops this way to below 5e-5. Here the same is
-done for a pair registered whole in mode "auto" when the ICP pose (a similarity refined by point-to-plane ICP from
+done for a pair registered whole in mode "auto" when the ICP pose (a similarity: point-to-plane with a scale, from
 ``result.transform``) makes the meshes coincide, RMS at most SNAP_TIGHT edge lengths or, for noisy meshes, a residual
 that averages out over neighbourhoods (a bent pair does not: it is left as registered); the snapped h is kept only
 if its coordinate residual is lower and the refined pose moved the points by no more than the answer's residual (ICP
@@ -42,14 +41,6 @@ SNAP_SCALE = 0.05
 # of it; rolled (3-30 degrees) and folded sheets: averaged 0.83-1.0 of their RMS (0.06-1.2), with noise 0.003 0.55-1.0
 # (a bend's residual does not average out); a noisy sheet registered at the wrong symmetry: 0.77 of 0.21
 SNAP_NOISY = 0.3
-# a pair that coincides at the registration's scale keeps it unless the second's vertices lie on the first's
-# triangles, within this many edge lengths (median) at the ICP's own scale: point-to-plane ICP with a scale shrinks a
-# curved surface onto the other mesh's chords (40 random relief sheets of two triangulations: the ICP's scale 0.04-0.4%
-# small, the registration's within 0.04%; the demo 0.18% against 0.006%; median distances 0.0024-0.016 edge lengths),
-# but is right where one mesh's vertices lie on the other's triangles (the benchmark's remeshed sheets: 1e-15 and, at
-# a nearby pose, 1.4e-4), where the registration's scale is 0.02-0.05% off. Below it the chords' sagitta, and with it
-# the ICP's bias, is negligible anyway
-SNAP_ON_TRIANGLES = 1e-3
 SNAP_NEIGHBOURS = 64
 SNAP_INCOHERENT = 0.4
 
@@ -70,7 +61,7 @@ def snap_rigid(mr, registered: tuple, tried: bool = True, surfaces: tuple | None
     first, second = surfaces
     start = np.linalg.inv(result.transform)  # the second into the first's frame
     sample = _vertex_sample(second)
-    pose, rms = _refined(sample, first, second, start)
+    pose, rms = icp(sample, first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
     scale = float(np.cbrt(np.linalg.det(pose[:3, :3])))
     edge = max(first.edge, scale * second.edge)
     if not (_kept_scale(scale, start) and _coincide(sample.moved(pose), first, rms, edge)):
@@ -97,20 +88,6 @@ def snap_rigid(mr, registered: tuple, tried: bool = True, surfaces: tuple | None
         timings=_timed(result.timings, seconds),
     )
     return replace(mr, result=snapped)
-
-
-def _refined(sample: Cloud, first: Surface, second: Surface, start: np.ndarray) -> tuple[np.ndarray, float]:
-    """The ICP pose (4, 4) of the second's ``sample`` on the ``first``'s triangles from the registration's
-    ``start`` and its RMS. When the rigid ICP at the registration's scale makes them coincide (RMS at most SNAP_TIGHT
-    edge lengths), that pose, unless the second's vertices lie on the first's triangles (a remeshing of the same
-    triangles: the median distance at the ICP's own scale at most SNAP_ON_TRIANGLES edge lengths), where the ICP's
-    scale is exact; else (noisy meshes) the ICP with a scale from ``start``."""
-    pose, rms = icp(sample, first, start, iterations=SNAP_ITERATIONS, exact=True)
-    if rms <= SNAP_TIGHT * max(first.edge, float(np.cbrt(np.linalg.det(start[:3, :3]))) * second.edge):
-        scaled, closer = icp(sample, first, pose, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
-        distance = first.closest(sample.moved(scaled).points)[1]
-        return (scaled, closer) if np.median(distance) <= SNAP_ON_TRIANGLES * first.edge else (pose, rms)
-    return icp(sample, first, start, iterations=SNAP_ITERATIONS, exact=True, scaled=True)
 
 
 def _kept_scale(scale: float, start: np.ndarray) -> bool:
