@@ -361,10 +361,9 @@ def test_removed_ears_apexes_inside_a_partial_overlap_are_matched():
     assert inside.sum() == 2 and np.all(np.isfinite(result.correspondence()[apexes[inside]]))
 
 
-def test_seam_slit_in_one_piece_is_welded():
-    # an exporter's seam cut into a grid sheet from its rim (one piece, duplicated vertices along the cut): held out
-    # 2026-12-01, it was registered as a slit disk, 132 degrees off with points 37% of the size wrong
-    n = 12
+def _slit_grid(n: int = 12):
+    """A grid sheet (v, f) of n x n cells, the same with a seam cut from its rim to below the centre (vertices
+    duplicated along the cut: (vertices, faces)), and a mask of the faces without one cell (a hole)."""
     x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1), indexing="ij")
     v = np.c_[x.ravel(), y.ravel(), 0.3 * np.sin(2 * x.ravel() + y.ravel())]
     ids = np.arange(len(v)).reshape(n + 1, n + 1)
@@ -374,32 +373,27 @@ def test_seam_slit_in_one_piece_is_welded():
     copy = np.arange(len(v))
     copy[on] = len(v) + np.arange(len(on))
     right = (v[f].mean(axis=1)[:, 0] > 0) & (v[f].mean(axis=1)[:, 1] < 0)
-    slit = np.where(right[:, None], copy[f], f)
-    disk = prepare_disk(np.vstack([v, v[on]]), slit)
-    assert any("welded 6 coincident vertices (a seam" in line for line in disk.report)
-    assert len(disk.boundary) == len(prepare_disk(v, f).boundary) == 4 * n
     holed = np.ones(len(f), dtype=bool)
-    holed[[8 * n + 8, 8 * n + 8 + n * n]] = False  # and a hole (the two triangles of one cell) elsewhere
-    disk = prepare_disk(np.vstack([v, v[on]]), slit[holed])
+    holed[[8 * n + 8, 8 * n + 8 + n * n]] = False  # the two triangles of one cell
+    return (v, f), (np.vstack([v, v[on]]), np.where(right[:, None], copy[f], f)), holed
+
+
+def test_seam_slit_in_one_piece_is_welded():
+    # an exporter's seam cut into a grid sheet from its rim (one piece, duplicated vertices along the cut): held out
+    # 2026-12-01, it was registered as a slit disk, 132 degrees off with points 37% of the size wrong
+    (v, f), (seamed, slit), holed = _slit_grid()
+    disk = prepare_disk(seamed, slit)
     assert any("welded 6 coincident vertices (a seam" in line for line in disk.report)
-    assert any("filled 1 hole" in line for line in disk.report) and len(disk.boundary) == 4 * n
+    assert len(disk.boundary) == len(prepare_disk(v, f).boundary) == 4 * 12
+    disk = prepare_disk(seamed, slit[holed])  # and a hole elsewhere
+    assert any("welded 6 coincident vertices (a seam" in line for line in disk.report)
+    assert any("filled 1 hole" in line for line in disk.report) and len(disk.boundary) == 4 * 12
 
 
 def _slit_sheet():
-    """A grid sheet with a seam cut from its rim (duplicated vertices, welded by the cleanup) and a hole."""
-    n = 12
-    x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1), indexing="ij")
-    v = np.c_[x.ravel(), y.ravel(), 0.3 * np.sin(2 * x.ravel() + y.ravel())]
-    ids = np.arange(len(v)).reshape(n + 1, n + 1)
-    a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
-    f = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
-    on = np.flatnonzero((np.abs(v[:, 0]) < 1e-9) & (v[:, 1] < -1e-9))
-    copy = np.arange(len(v))
-    copy[on] = len(v) + np.arange(len(on))
-    right = (v[f].mean(axis=1)[:, 0] > 0) & (v[f].mean(axis=1)[:, 1] < 0)
-    holed = np.ones(len(f), dtype=bool)
-    holed[[8 * n + 8, 8 * n + 8 + n * n]] = False
-    return np.vstack([v, v[on]]), np.where(right[:, None], copy[f], f)[holed]
+    """The slit grid sheet of :func:`_slit_grid` with its hole: a seam to weld and a hole to fill."""
+    _, (seamed, slit), holed = _slit_grid()
+    return seamed, slit[holed]
 
 
 @pytest.mark.parametrize("make", [_slit_sheet, lambda: _lattice_triangle(10), lambda: random_disk_mesh(bump(), 400, 5)])
