@@ -54,8 +54,14 @@ def test_neighbourhood_sums_match_the_sparse_product_to_the_bit(seed):
     incidence = sp.csr_matrix((np.ones(faces.size), (np.repeat(np.arange(len(faces)), 3), faces.ravel())))
     sharing = incidence @ incidence.T
     sharing.data[:] = 1.0
+    corners = faces.ravel()  # each vertex's triangles in increasing order, padded with -1
+    by_vertex = np.argsort(corners, kind="stable")
+    width = np.bincount(corners).max()
+    incident = np.full((corners.max() + 1, width), -1)
+    slot = np.arange(len(corners)) - np.searchsorted(corners[by_vertex], corners[by_vertex])
+    incident[corners[by_vertex], slot] = by_vertex // 3
     # to the bit: the kernel follows scipy's order of summation (csr_matmat's rows, last met first)
-    assert np.array_equal(neighbourhood_sums(faces, values), sharing @ values)
+    assert np.array_equal(neighbourhood_sums(faces, values, incident), sharing @ values)
 
 
 def test_triangle_areas():

@@ -184,24 +184,14 @@ def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _neighbourhood_sums(faces: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+def _neighbourhood_sums(faces: np.ndarray, values: np.ndarray, incident: np.ndarray) -> np.ndarray:
     """Per face, the sum of ``values`` (m, d) over the faces that share a corner with it (itself included), each
-    once. Summed in the order of scipy's ``(I @ I.T) @ values`` for the face-vertex incidence I (CSR, sorted): for
-    each corner in increasing vertex order, its faces in increasing order, first meetings last to first."""
+    once, the faces around each vertex read from ``incident``. Summed in the order of scipy's ``(I @ I.T) @ values``
+    for the face-vertex incidence I (CSR, sorted): for each corner in increasing vertex order, its faces in
+    increasing order, first meetings last to first."""
     m, d = faces.shape[0], values.shape[1]
-    start = np.zeros(n + 1, np.int64)
-    for t in range(m):
-        for k in range(3):
-            start[faces[t, k] + 1] += 1
-    for a in range(n):
-        start[a + 1] += start[a]
-    around, fill = np.empty(start[n], np.int64), start[:-1].copy()
-    for t in range(m):
-        for k in range(3):
-            around[fill[faces[t, k]]] = t
-            fill[faces[t, k]] += 1
     mark = np.full(m, -1, np.int64)
-    met = np.empty(start[n], np.int64)
+    met = np.empty(incident.size, np.int64)
     out = np.zeros((m, d))
     for t in range(m):
         a0, a1, a2 = faces[t, 0], faces[t, 1], faces[t, 2]
@@ -213,8 +203,10 @@ def _neighbourhood_sums(faces: np.ndarray, values: np.ndarray, n: int) -> np.nda
             a = a0 if k == 0 else a1 if k == 1 else a2
             if (k == 1 and a == a0) or (k == 2 and a == a1):
                 continue
-            for p in range(start[a], start[a + 1]):
-                g = around[p]
+            for p in range(incident.shape[1]):
+                g = incident[a, p]
+                if g < 0:
+                    break
                 if mark[g] != t:
                     mark[g] = t
                     met[count] = g
@@ -225,11 +217,14 @@ def _neighbourhood_sums(faces: np.ndarray, values: np.ndarray, n: int) -> np.nda
     return out
 
 
-def neighbourhood_sums(faces: np.ndarray, values: np.ndarray) -> np.ndarray:
+def neighbourhood_sums(faces: np.ndarray, values: np.ndarray, incident: np.ndarray) -> np.ndarray:
     """Per triangle of ``faces`` (m, 3), the sum of the per-triangle ``values`` (m, d) over the triangles that share
     a corner with it, itself included, each once (m, d): the same numbers, to the last bit, as the sparse product
     (I I^T with its entries set to 1) @ values of the face-vertex incidence I, in O(m) and without the (m, m)
-    matrix."""
-    faces = np.ascontiguousarray(faces, dtype=np.int64)
-    n = int(faces.max()) + 1 if len(faces) else 0
-    return _neighbourhood_sums(faces, np.ascontiguousarray(values, dtype=float), n)
+    matrix. ``incident`` (n, width): per vertex, the triangles that hold it in increasing order, padded with -1
+    (:attr:`meshreg.mesh.surface.Surface.incident`)."""
+    return _neighbourhood_sums(
+        np.ascontiguousarray(faces, dtype=np.int64),
+        np.ascontiguousarray(values, dtype=float),
+        np.ascontiguousarray(incident, dtype=np.int64),
+    )

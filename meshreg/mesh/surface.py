@@ -203,7 +203,7 @@ class Surface:
         return closest, distance, fn
 
     @cached_property
-    def _incident(self) -> np.ndarray:
+    def incident(self) -> np.ndarray:
         """Per vertex, the triangles around it in increasing order (n, max valence), padded with -1."""
         counts = np.bincount(self.faces.ravel(), minlength=len(self.vertices))
         return _incident_triangles(self.faces, len(self.vertices), max(int(counts.max()), 1))
@@ -220,7 +220,7 @@ class Surface:
         triangle = np.zeros(len(points), dtype=np.int64)
         k = min(NEAREST_VERTICES, len(self.vertices))
         _, near = self.tree.query(points, k=k)
-        candidates = np.ascontiguousarray(self._incident[near.reshape(len(points), k)].reshape(len(points), -1))
+        candidates = np.ascontiguousarray(self.incident[near.reshape(len(points), k)].reshape(len(points), -1))
         _closest_points(points, self.vertices, self.faces, candidates, closest, weights, triangle)
         return closest, np.linalg.norm(closest - points, axis=1), triangle, weights
 
