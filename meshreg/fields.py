@@ -24,7 +24,8 @@ from functools import wraps
 import numba
 import numpy as np
 import scipy.sparse as sp
-from scipy.interpolate import BSpline
+
+from .spline import bspline_table
 
 BASIS_CACHE = 8  # bases kept per process, by kind, size and grid (every start and level asks for the same few)
 
@@ -258,9 +259,7 @@ def riseth_basis(kl: int, r: np.ndarray, t: np.ndarray) -> TensorBasis:
 def _bsplines(x: np.ndarray, n: int):
     """n clamped uniform cubic B-splines on [0, 1] at x, and their derivatives: (len(x), n) each."""
     interior = np.linspace(0.0, 1.0, n - 2)
-    knots = np.concatenate([[0.0] * 3, interior, [1.0] * 3])
-    spline = BSpline(knots, np.eye(n), 3, extrapolate=False)
-    return np.nan_to_num(spline(x)), np.nan_to_num(spline.derivative()(x))
+    return bspline_table(np.concatenate([[0.0] * 3, interior, [1.0] * 3]), 3, np.asarray(x, dtype=float))
 
 
 @_kept

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
 from ..errors import InputError
+from ..gaussian import gaussian_filter1d
 from ..grid import GridSurface
 from .locate import barycentric, uv_triangle
 
@@ -167,6 +167,6 @@ def blur_grid(grid: GridSurface, sigma: float) -> GridSurface:
         v = np.moveaxis(points, axis, 0)
         k = int(np.ceil(GAUSS_TAIL * sigma))
         padded = np.pad(v, [(k, k)] + [(0, 0)] * (v.ndim - 1), mode="reflect", reflect_type="odd")
-        v = gaussian_filter1d(padded, sigma, axis=0, mode="constant", truncate=GAUSS_TAIL)[k : k + len(v)]
+        v = gaussian_filter1d(padded, sigma, "constant", GAUSS_TAIL)[k : k + len(v)]
         points = np.moveaxis(v, 0, axis)
     return GridSurface.from_array(points, grid.r, grid.t)
