@@ -19,11 +19,12 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cache
 
 import numba
 import numpy as np
 import scipy.sparse as sp
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from .ordering import _postorder, symmetric_minimum_degree, symmetric_pattern
 
@@ -534,6 +535,13 @@ def analyse(pattern: sp.spmatrix, threads: int = THREADS) -> Analysis:
     return Analysis(n, order, inv, first, flat, off, head, following, schedule)
 
 
+@cache
+def _blas() -> ThreadpoolController:
+    """The process's BLAS libraries, found once (threadpoolctl's ``threadpool_limits`` looks them up again at every
+    call: 2-10 ms each)."""
+    return ThreadpoolController()
+
+
 class MultifrontalLU:
     """The LU factors of a sparse square matrix that needs no pivoting (an M-matrix, a symmetric positive definite
     matrix), by the multifrontal method; :meth:`solve` solves A x = b.
@@ -581,7 +589,7 @@ class MultifrontalLU:
         ext_off[roots] = np.r_[0, np.cumsum(nu[roots] ** 2)][:-1]
         ext = np.empty(int((nu[roots] ** 2).sum()))
         run = [(b, ext_off, ext, self.factors, self.offsets) for b in bins]
-        with threadpool_limits(BLAS_THREADS, user_api="blas"):
+        with _blas().limit(limits=BLAS_THREADS, user_api="blas"):
             self._factorize(common, run, top, ext_off, ext)
         finite = all(_all_finite(part) for part in self.factors)
         if not (finite and _pivots_nonzero(self.factors[0], first, self.offsets[0])):
