@@ -1,16 +1,18 @@
 """The figures of issue 17 in one table: grid registration in mode "auto" at 101 x 101 and 401 x 401, the mesh
 front end, two meshes through the API and the whole ``meshreg register`` command on two PLY files.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_speed.py [--quick | --meshes] [--faces N] [--large 100000 1000000]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_speed.py [--quick | --meshes] [--faces N] [--repeats R]
+                                                            [--large 100000 1000000]
 
 Warm runs: the numba kernels are compiled (or loaded from their cache) by small registrations first, and meshreg's
-bytecode is written (:func:`warm_up`). ``--quick``
-runs a subset in under a minute (three of the paper's pairs at 101 x 101, sine 2-3 at 201 x 201, the mesh front
-end, two meshes through the API); the full run adds every paper pair, 401 x 401, the command line and the distance
-matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local processes (``--jobs``); ``--meshes``
-runs only the mesh rows (front end, API, whole command). ``--large`` adds the front end of one mesh per size, each
-in a fresh process, with its peak memory (a 1M-triangle mesh takes about 5 s and 0.6 GB), as generated (vertices in
-random order) and renumbered in space order. Times on a shared machine vary by +-30 %.
+bytecode is written (:func:`warm_up`). Every timed figure but the distance matrix is the median of ``--repeats``
+runs (default 3, 1 with ``--quick``), their range beside it: times on this shared machine drift by +-30 % within
+minutes. ``--quick`` runs a subset in under a minute (three of the paper's pairs at 101 x 101, sine 2-3 at
+201 x 201, the mesh front end, two meshes through the API); the full run adds every paper pair, 401 x 401, the
+command line and the distance matrix of ``benchmarks/bench_matrix.py``'s 20 surfaces at 101 x 101 on 2 local
+processes (``--jobs``); ``--meshes`` runs only the mesh rows (front end, API, whole command). ``--large`` adds the
+front end of one mesh per size, each run in a fresh process (the sizes in turn), with its peak memory (a
+1M-triangle mesh takes about 4 s and 0.6 GB), as generated (vertices in random order) and renumbered in space order.
 """
 
 import argparse
@@ -45,6 +47,9 @@ QUICK_PAIRS = ["sine2-3 g1", "helicoid4 g2", "cossin g2"]
 FINE_PAIRS = ["helicoid4 g2", "sine2-3 g1"]
 
 
+REPEATS = 3  # runs of every timed figure but the distance matrix; the table gives their median
+
+
 def timed(fn, *args, **kwargs):
     """(seconds, value) of one call."""
     tic = time.perf_counter()
@@ -52,7 +57,16 @@ def timed(fn, *args, **kwargs):
     return time.perf_counter() - tic, value
 
 
-def grid_rows(quick: bool) -> list[tuple[str, float, str]]:
+def repeated(repeats: int, fn, *args, **kwargs):
+    """(median seconds, the runs' range as text, the last value) of ``repeats`` calls: this shared host's speed
+    drifts by 30% within minutes, and one run of a figure near its target says little."""
+    runs = [timed(fn, *args, **kwargs) for _ in range(repeats)]
+    seconds = sorted(r[0] for r in runs)
+    spread = f"runs {seconds[0]:.2f}-{seconds[-1]:.2f} s" if repeats > 1 else ""
+    return float(np.median(seconds)), spread, runs[-1][1]
+
+
+def grid_rows(quick: bool, repeats: int) -> list[tuple[str, float, str]]:
     """Mode auto on the paper's pairs at 101 x 101 (median and slowest) and on two pairs at a finer grid, with
     the ratio of E there to the E of the 101 x 101 answer measured on that finer grid (E on a grid is only comparable
     with E on another grid when both answers are measured on one grid: ``bench_fine.py``)."""
@@ -60,10 +74,16 @@ def grid_rows(quick: bool) -> list[tuple[str, float, str]]:
     pairs = [p for p in paper_pairs(101, 101) if not quick or p.name in QUICK_PAIRS]
     runs = []
     for pair in pairs:
-        seconds, result = timed(meshreg.register, pair.first, pair.second)
+        seconds, spread, result = repeated(repeats, meshreg.register, pair.first, pair.second)
         coarse[pair.name] = result
         runs.append((seconds, pair.name, result.energy))
-        rows.append((f"auto 101^2 {pair.name}", seconds, f"{result.energy:.3g}"))
+        rows.append(
+            (
+                f"auto 101^2 {pair.name}",
+                seconds,
+                f"{result.energy:.3g} ({spread})" if spread else f"{result.energy:.3g}",
+            )
+        )
     times = sorted(r[0] for r in runs)
     slowest = max(runs)
     rows.append((f"auto 101^2 median over {len(runs)} pairs", float(np.median(times)), ""))
@@ -71,8 +91,14 @@ def grid_rows(quick: bool) -> list[tuple[str, float, str]]:
     size = 201 if quick else 401
     fine = [p for p in paper_pairs(size, size) if p.name in (FINE_PAIRS[1:] if quick else FINE_PAIRS)]
     for pair in fine:
-        seconds, result = timed(meshreg.register, pair.first, pair.second)
-        rows.append((f"auto {size}^2 {pair.name}", seconds, f"{result.energy:.3g}"))
+        seconds, spread, result = repeated(repeats, meshreg.register, pair.first, pair.second)
+        rows.append(
+            (
+                f"auto {size}^2 {pair.name}",
+                seconds,
+                f"{result.energy:.3g} ({spread})" if spread else f"{result.energy:.3g}",
+            )
+        )
         if pair.name in coarse:
             measured = energy_on(coarse[pair.name], pair)
             rows.append(
@@ -94,17 +120,17 @@ def mesh_pair(faces: int):
     return a, b
 
 
-def mesh_rows(faces: int, quick: bool) -> list[tuple[str, float, str]]:
+def mesh_rows(faces: int, quick: bool, repeats: int) -> list[tuple[str, float, str]]:
     """The front end of one mesh, two meshes through the API and (full run) the command line on two PLY files."""
     a, b = mesh_pair(faces)
-    seconds, _ = timed(mesh_grids, *a, Options())
-    rows = [(f"mesh front end, {len(a[1])} triangles", seconds, "")]
+    seconds, spread, _ = repeated(repeats, mesh_grids, *a, Options())
+    rows = [(f"mesh front end, {len(a[1])} triangles", seconds, spread)]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    seconds, result = timed(meshreg.register, a, b)
+    seconds, spread, result = repeated(repeats, meshreg.register, a, b)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    child = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    child = (after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime) / repeats
     note = f"{result.energy:.3g}" + (f" (forked child: {child:.2f} s CPU)" if child > 0.01 else " (no child: serial)")
-    rows.append((f"two meshes of {len(a[1])}/{len(b[1])} triangles, API", seconds, note))
+    rows.append((f"two meshes of {len(a[1])}/{len(b[1])} triangles, API", seconds, f"{note}, {spread}".strip(", ")))
     if quick:
         return rows
     with tempfile.TemporaryDirectory() as folder:
@@ -112,10 +138,10 @@ def mesh_rows(faces: int, quick: bool) -> list[tuple[str, float, str]]:
         for path, (v, f) in zip(paths, (a, b), strict=True):
             trimesh.Trimesh(v, f, process=False).export(path)
         command = [sys.executable, "-m", "meshreg.cli", "register", *map(str, paths), "-o", str(Path(folder) / "o")]
-        seconds, done = timed(subprocess.run, command, capture_output=True, text=True)
+        seconds, spread, done = repeated(repeats, subprocess.run, command, capture_output=True, text=True)
         if done.returncode:
             raise SystemExit(done.stderr)
-        rows.append(("meshreg register a.ply b.ply, whole command", seconds, ""))
+        rows.append(("meshreg register a.ply b.ply, whole command", seconds, spread))
     return rows
 
 
@@ -166,11 +192,12 @@ def _front_end_cost(path: str, space_order: bool) -> tuple[int, float, float]:
     return len(faces), seconds, peak_since(before)
 
 
-def large_rows(sizes: list[int]) -> list[tuple[str, float, str]]:
-    """The front end of one mesh per size (triangles), each in a fresh process: seconds and peak memory, and both
-    against the first size's (issue 17 asks for linear growth: at most 12x from 100k to 1M triangles). The
-    benchmark's vertices come in random order (random points, triangulated), the worst case for memory locality;
-    the same meshes renumbered in space order (:func:`_in_space_order`) follow, each against its own first size."""
+def large_rows(sizes: list[int], repeats: int) -> list[tuple[str, float, str]]:
+    """The front end of one mesh per size (triangles), ``repeats`` times each in a fresh process (the sizes taken in
+    turn): the median seconds and peak memory, and both against the first size's (issue 17 asks for linear growth:
+    at most 12x from 100k to 1M triangles). The benchmark's vertices come in random order (random points,
+    triangulated), the worst case for memory locality; the same meshes renumbered in space order
+    (:func:`_in_space_order`) follow, each against its own first size."""
     rows = []
     context = multiprocessing.get_context("spawn")
     with tempfile.TemporaryDirectory() as folder:
@@ -179,15 +206,22 @@ def large_rows(sizes: list[int]) -> list[tuple[str, float, str]]:
             with ProcessPoolExecutor(1, mp_context=context) as pool:
                 pool.submit(_saved_mesh, faces, path).result()
         for space_order, label in ((False, "fresh process"), (True, "vertices in space order, fresh process")):
+            runs = {path: [] for path in paths}
+            for _ in range(repeats):
+                for path in paths:
+                    with ProcessPoolExecutor(1, mp_context=context) as pool:
+                        runs[path].append(pool.submit(_front_end_cost, path, space_order).result())
             first = None
             for path in paths:
-                with ProcessPoolExecutor(1, mp_context=context) as pool:
-                    count, seconds, memory = pool.submit(_front_end_cost, path, space_order).result()
+                count = runs[path][0][0]
+                seconds, memory = (float(np.median([r[k] for r in runs[path]])) for k in (1, 2))
                 first = first or (count, seconds, memory)
                 note = f"peak memory +{memory:.0f} MB"
                 if count != first[0]:
                     times, memories = seconds / first[1], memory / max(first[2], 1e-9)
                     note += f" (x{times:.1f} the time, x{memories:.1f} the memory at {first[0]})"
+                if repeats > 1:
+                    note += ", runs " + " / ".join(f"{r[1]:.2f}" for r in runs[path]) + " s"
                 rows.append((f"mesh front end, {count} triangles, {label}", seconds, note))
     return rows
 
@@ -209,27 +243,31 @@ def main():
     parser.add_argument("--faces", type=int, default=100_000, help="triangles per mesh")
     parser.add_argument("--jobs", type=int, default=2, help="local processes of the distance matrix")
     parser.add_argument(
+        "--repeats", type=int, help=f"runs of each timed figure, the median shown (default {REPEATS}, --quick 1)"
+    )
+    parser.add_argument(
         "--meshes", action="store_true", help="only the mesh rows: front end, API and the whole command"
     )
     parser.add_argument(
         "--large", type=int, nargs="+", metavar="FACES", help="also the front end at these sizes (e.g. 100000 1000000)"
     )
     args = parser.parse_args()
+    args.repeats = args.repeats or (1 if args.quick else REPEATS)
     np.seterr(all="ignore")
     warm_up()
     if args.meshes:
-        rows = mesh_rows(args.faces, False)
+        rows = mesh_rows(args.faces, False, args.repeats)
     else:
-        rows = grid_rows(args.quick) + mesh_rows(args.faces, args.quick)
+        rows = grid_rows(args.quick, args.repeats) + mesh_rows(args.faces, args.quick, args.repeats)
     if not (args.quick or args.meshes):
         rows += matrix_rows(args.jobs)
     if args.large:
-        rows += large_rows(args.large)
+        rows += large_rows(args.large, args.repeats)
     print(
         f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"{platform.python_implementation()} {platform.python_version()}, "
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
-        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC, median of {args.repeats} runs per figure"
     )
     print("| figure | seconds | E |")
     print("|---|---|---|")
