@@ -26,12 +26,13 @@ with the process that forked them (PR_SET_PDEATHSIG), so none is left behind, ru
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import os
 import queue
 import threading
 
-from .forked import add_pausable, discard_pausable, leave_signals_to_caller, may_fork
+from .forked import add_pausable, discard_pausable, frozen_heap, leave_signals_to_caller, may_fork
 
 
 def _draw(name: str, args: tuple, kwargs: dict):
@@ -75,6 +76,7 @@ def _fork_second(first, second) -> None:
     """In the warmed first worker: fork the second worker, which dies with the first, says it is ready and serves
     ``second`` (and never holds the first's pipe, so that the caller still sees the first die)."""
     me = os.getpid()
+    gc.freeze()  # matplotlib's objects too (the first worker's own: see meshreg.forked.frozen_heap)
     if os.fork() == 0:
         try:
             leave_signals_to_caller(me)
@@ -120,7 +122,8 @@ class Painter:
             self._worker = context.Process(
                 target=_work, args=(*ends, [ours for ours, _ in pipes], os.getpid()), daemon=True
             )
-            self._worker.start()
+            with frozen_heap():
+                self._worker.start()
             for ours, theirs in pipes:
                 theirs.close()
                 self._conns.append(ours)

@@ -1,3 +1,4 @@
+import gc
 import os
 import signal
 import time
@@ -32,6 +33,20 @@ def test_forked_answer_comes_from_a_child_and_equals_the_serial_one(monkeypatch)
     assert (pid != os.getpid()) == started
     pid, value = Forked(_pid_and_square, 7, fork=False).result()
     assert (pid, value) == (os.getpid(), 49)
+
+
+def _frozen_and_collected():
+    gc.collect()
+    return gc.get_freeze_count()
+
+
+@pytest.mark.skipif(not may_fork(), reason="no fork here")
+def test_a_child_leaves_what_it_shares_with_its_caller_frozen_and_the_caller_is_thawed():
+    held = [[object()] for _ in range(1000)]  # objects the child inherits: its collections must not visit them
+    before = gc.get_freeze_count()
+    with Forked(_frozen_and_collected, fork=True) as job:
+        frozen = job.result()
+    assert frozen >= len(held) and gc.get_freeze_count() == before == 0
 
 
 def test_no_child_is_forked_where_sigchld_is_ignored(monkeypatch):
