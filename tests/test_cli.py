@@ -1,3 +1,4 @@
+import gc
 import re
 import subprocess
 import sys
@@ -5,6 +6,7 @@ import sys
 import numpy as np
 import pytest
 
+import meshreg.pipeline
 from meshreg.cli import main
 from meshreg.result import Registration
 from meshreg.samples import paper_pairs
@@ -171,13 +173,25 @@ def test_demo_checks_its_own_answer(tmp_path):
     assert (tmp_path / "d" / "view.html").stat().st_size > 1_000_000
 
 
-def test_register_prints_residual_and_an_ambiguous_correspondence(tmp_path, capsys):
+def _spy(function, note):
+    def spied(*args, **kwargs):
+        note()
+        return function(*args, **kwargs)
+
+    return spied
+
+
+def test_register_prints_residual_and_an_ambiguous_correspondence(tmp_path, capsys, monkeypatch):
     from meshreg.samples import sample, symmetric_sheet
 
     c = symmetric_sheet("two-fold")
     np.save(tmp_path / "a.npy", sample(c, 21, 21).points)
     np.save(tmp_path / "b.npy", sample(lambda u, v: 2 * c(u, v)[..., [1, 2, 0]], 23, 19).points)
+    collecting = []
+    spied = _spy(meshreg.pipeline.register_with, lambda: collecting.append(gc.isenabled()))
+    monkeypatch.setattr(meshreg.pipeline, "register_with", spied)
     assert main(["register", str(tmp_path / "a.npy"), str(tmp_path / "b.npy"), "-o", str(tmp_path / "o"), "-q"]) == 0
+    assert collecting == [False] and gc.isenabled()  # the collector off during the registration, on again after
     out = capsys.readouterr().out
     assert "residual" in out and "against the mirror image" in out
     ambiguous = [line for line in out.splitlines() if "ambiguous" in line]
