@@ -66,6 +66,19 @@ def repeated(repeats: int, fn, *args, **kwargs):
     return float(np.median(seconds)), spread, runs[-1][1]
 
 
+def _with_spread(note: str, spread: str) -> str:
+    """A row's note with the runs' range after it (when there were several)."""
+    return f"{note} ({spread})" if spread else note
+
+
+def _command(command: list[str]) -> subprocess.CompletedProcess:
+    """One run of a command line; a failed run stops the benchmark (its time would count in the median)."""
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(done.stderr)
+    return done
+
+
 def grid_rows(quick: bool, repeats: int) -> list[tuple[str, float, str]]:
     """Mode auto on the paper's pairs at 101 x 101 (median and slowest) and on two pairs at a finer grid, with
     the ratio of E there to the E of the 101 x 101 answer measured on that finer grid (E on a grid is only comparable
@@ -77,13 +90,7 @@ def grid_rows(quick: bool, repeats: int) -> list[tuple[str, float, str]]:
         seconds, spread, result = repeated(repeats, meshreg.register, pair.first, pair.second)
         coarse[pair.name] = result
         runs.append((seconds, pair.name, result.energy))
-        rows.append(
-            (
-                f"auto 101^2 {pair.name}",
-                seconds,
-                f"{result.energy:.3g} ({spread})" if spread else f"{result.energy:.3g}",
-            )
-        )
+        rows.append((f"auto 101^2 {pair.name}", seconds, _with_spread(f"{result.energy:.3g}", spread)))
     times = sorted(r[0] for r in runs)
     slowest = max(runs)
     rows.append((f"auto 101^2 median over {len(runs)} pairs", float(np.median(times)), ""))
@@ -92,13 +99,7 @@ def grid_rows(quick: bool, repeats: int) -> list[tuple[str, float, str]]:
     fine = [p for p in paper_pairs(size, size) if p.name in (FINE_PAIRS[1:] if quick else FINE_PAIRS)]
     for pair in fine:
         seconds, spread, result = repeated(repeats, meshreg.register, pair.first, pair.second)
-        rows.append(
-            (
-                f"auto {size}^2 {pair.name}",
-                seconds,
-                f"{result.energy:.3g} ({spread})" if spread else f"{result.energy:.3g}",
-            )
-        )
+        rows.append((f"auto {size}^2 {pair.name}", seconds, _with_spread(f"{result.energy:.3g}", spread)))
         if pair.name in coarse:
             measured = energy_on(coarse[pair.name], pair)
             rows.append(
@@ -138,9 +139,7 @@ def mesh_rows(faces: int, quick: bool, repeats: int) -> list[tuple[str, float, s
         for path, (v, f) in zip(paths, (a, b), strict=True):
             trimesh.Trimesh(v, f, process=False).export(path)
         command = [sys.executable, "-m", "meshreg.cli", "register", *map(str, paths), "-o", str(Path(folder) / "o")]
-        seconds, spread, done = repeated(repeats, subprocess.run, command, capture_output=True, text=True)
-        if done.returncode:
-            raise SystemExit(done.stderr)
+        seconds, spread, _ = repeated(repeats, _command, command)
         rows.append(("meshreg register a.ply b.ply, whole command", seconds, spread))
     return rows
 
@@ -226,6 +225,14 @@ def large_rows(sizes: list[int], repeats: int) -> list[tuple[str, float, str]]:
     return rows
 
 
+def _positive(text: str) -> int:
+    """A count of at least 1 (argparse type)."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"at least 1, not {value}")
+    return value
+
+
 def warm_up():
     """Compile (or load) the numba kernels of grids and meshes, and write meshreg's bytecode: Python's own cache,
     which an environment with PYTHONDONTWRITEBYTECODE=1 (this machine's) never writes for an editable install, so
@@ -243,7 +250,9 @@ def main():
     parser.add_argument("--faces", type=int, default=100_000, help="triangles per mesh")
     parser.add_argument("--jobs", type=int, default=2, help="local processes of the distance matrix")
     parser.add_argument(
-        "--repeats", type=int, help=f"runs of each timed figure, the median shown (default {REPEATS}, --quick 1)"
+        "--repeats",
+        type=_positive,
+        help=f"runs of each timed figure, the median shown (default {REPEATS}, --quick 1)",
     )
     parser.add_argument(
         "--meshes", action="store_true", help="only the mesh rows: front end, API and the whole command"

@@ -194,10 +194,19 @@ def leave_signals_to_caller(caller: int) -> None:
         os._exit(1)
 
 
+def child_started(caller: int) -> None:
+    """What every child forked by process ``caller`` does first: leave the signals to the caller
+    (:func:`leave_signals_to_caller`) and collect its own garbage, even when the caller runs with the collector off
+    (``meshreg register``): the caller's objects are frozen (:func:`frozen_heap`), so a collection visits the child's
+    objects only (a figure worker's drawings are full of cycles)."""
+    leave_signals_to_caller(caller)
+    gc.enable()
+
+
 def _serve(conn, function: Callable, args: tuple, caller: int) -> None:
     """In the child: leave Ctrl-C to the caller (it stops the child), compute, send the answer; send nothing when
     the function raises or the answer cannot be pickled (the caller then computes it itself)."""
-    leave_signals_to_caller(caller)
+    child_started(caller)
     try:
         conn.send(function(*args))
     except BaseException:  # noqa: BLE001 - the caller recomputes and meets the error itself

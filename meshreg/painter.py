@@ -32,7 +32,7 @@ import os
 import queue
 import threading
 
-from .forked import add_pausable, discard_pausable, frozen_heap, leave_signals_to_caller, may_fork
+from .forked import add_pausable, child_started, discard_pausable, frozen_heap, may_fork
 
 
 def _draw(name: str, args: tuple, kwargs: dict):
@@ -79,7 +79,7 @@ def _fork_second(first, second) -> None:
     gc.freeze()  # matplotlib's objects too (the first worker's own: see meshreg.forked.frozen_heap)
     if os.fork() == 0:
         try:
-            leave_signals_to_caller(me)
+            child_started(me)
             first.close()
             second.send("ready")
             _serve(second, _listen(second))
@@ -95,7 +95,7 @@ def _work(conn, second, callers: list, caller: int) -> None:
     and answer None or the error."""
     for end in callers:
         end.close()
-    leave_signals_to_caller(caller)
+    child_started(caller)
     jobs = _listen(conn)
     from . import viz
 

@@ -538,7 +538,8 @@ def analyse(pattern: sp.spmatrix, threads: int = THREADS) -> Analysis:
 @cache
 def _blas() -> ThreadpoolController:
     """The process's BLAS libraries, found once (threadpoolctl's ``threadpool_limits`` looks them up again at every
-    call: 2-10 ms each)."""
+    call: 2-10 ms each). Those loaded at the first factorization: numpy's and scipy's, which this module's imports
+    load already."""
     return ThreadpoolController()
 
 
