@@ -58,8 +58,7 @@ class Side:
         placed on the square at their foot on the ear's base: they are matched there, not left without a match."""
         layout = np.arange(len(disk.vertices), dtype=float)[:, None]
         index = disk.to_input(layout, n_input, [-1.0])[:, 0].astype(np.int64)
-        source = np.full(len(disk.vertices), -1, dtype=np.int64)
-        source[: len(disk.vertex_map)] = disk.vertex_map
+        source = disk.source_of(np.arange(len(disk.vertices)))
         feet = disk.ear_feet
         if feet is None:
             return cls(disk.vertices, disk.faces, uv, index, source)

@@ -401,9 +401,7 @@ class HarmonicMap:
         if lu is not None:
             uv[self.interior] = lu.solve(-(coupling @ uv[loop]))
         _, negative, degenerate = turn_counts(uv, f)
-        known = loop[corner_pos] < len(disk.vertex_map)  # a cut point of a trimmed disk has no input id: -1
-        ids = np.where(known, disk.vertex_map[np.minimum(loop[corner_pos], len(disk.vertex_map) - 1)], -1)
-        info = {"corners": ids.tolist(), "flipped": negative, "degenerate": degenerate}
+        info = {"corners": disk.source_of(loop[corner_pos]).tolist(), "flipped": negative, "degenerate": degenerate}
         return np.clip(uv, 0.0, 1.0), info
 
 

@@ -137,6 +137,13 @@ class DiskMesh:
         out[self.vertex_map] = values[: len(self.vertex_map)]
         return out if self.aliases is None else out[self.aliases]
 
+    def source_of(self, ids) -> np.ndarray:
+        """Ids in the mesh as given of this disk's vertices ``ids`` (any shape): -1 for a vertex the input does not
+        have (a hole-filling centre, a cut point of a trimmed disk). The inverse of :meth:`input_ids`."""
+        ids = np.asarray(ids, dtype=np.int64)
+        known = ids < len(self.vertex_map)
+        return np.where(known, self.vertex_map[np.minimum(ids, len(self.vertex_map) - 1)], -1)
+
     def input_ids(self, ids) -> np.ndarray:
         """Indices in this disk of vertices given by their ids in the input mesh (InputError if dropped)."""
         given = ids = np.asarray(ids, dtype=np.int64)
