@@ -103,12 +103,10 @@ def _collocation(node_bytes: bytes, k: int) -> tuple[np.ndarray, np.ndarray]:
     Read-only."""
     x = np.frombuffer(node_bytes)
     knots = interpolation_knots(x, k)
+    dense = bspline_table(knots, k, x)[0]  # (m, m): B-spline j at node i, zero beyond k of the diagonal
     banded = np.zeros((2 * k + 1, len(x)))
-    for i, xi in enumerate(x):
-        span = _span(knots, k, xi)
-        banded[k + i - np.arange(span - k, span + 1), np.arange(span - k, span + 1)] = basis_derivatives(
-            knots, k, span, xi, 0
-        )[0]
+    for offset in range(-k, k + 1):  # LAPACK's storage: entry (i, j) in row k + i - j of column j
+        banded[k - offset, max(offset, 0) : len(x) + min(offset, 0)] = np.diagonal(dense, offset)
     knots.flags.writeable = banded.flags.writeable = False
     return knots, banded
 
