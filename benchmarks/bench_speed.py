@@ -131,7 +131,7 @@ def mesh_rows(faces: int, quick: bool, repeats: int) -> list[tuple[str, float, s
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     child = (after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime) / repeats
     note = f"{result.energy:.3g}" + (f" (forked child: {child:.2f} s CPU)" if child > 0.01 else " (no child: serial)")
-    rows.append((f"two meshes of {len(a[1])}/{len(b[1])} triangles, API", seconds, f"{note}, {spread}".strip(", ")))
+    rows.append((f"two meshes of {len(a[1])}/{len(b[1])} triangles, API", seconds, _with_spread(note, spread)))
     if quick:
         return rows
     with tempfile.TemporaryDirectory() as folder:
