@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +61,12 @@ class Checkpoint:
         except OSError as err:
             raise InputError(f"cannot read the checkpoint {self.path} ({reason(err)}): {start_over}") from None
         if b"\n" not in data:
-            return 0  # empty, or killed while writing its header
+            if _cut_header(data):
+                return 0  # empty, or killed while writing its header
+            raise InputError(
+                f"{self.path} is not a meshreg checkpoint (it holds no header): {start_over}, or write the output "
+                "elsewhere"
+            )
         keep = data.rindex(b"\n") + 1
         try:
             lines = data[:keep].decode("utf-8").split("\n")[:-1]
@@ -109,6 +115,17 @@ class Checkpoint:
 
     def close(self) -> None:
         self._file.close()
+
+
+def _cut_header(data: bytes) -> bool:
+    """Whether ``data`` (a file without a newline) is empty or the start of a checkpoint's header line
+    ``{"key": "<hex digest>"}``: what a run killed before its header was written leaves. Anything else is someone's
+    file, not to be truncated."""
+    opening = b'{"key": "'
+    return (
+        opening.startswith(data[: len(opening)])
+        and re.fullmatch(rb'[0-9a-f]*("\}?)?', data[len(opening) :]) is not None
+    )
 
 
 def _json_or_none(line: str):

@@ -85,6 +85,21 @@ def test_checkpoint_of_another_run_is_refused_and_cut_lines_are_redone(tmp_path)
         Checkpoint(path, key="something else")
 
 
+def test_a_file_of_one_line_is_not_taken_for_a_cut_checkpoint(tmp_path):
+    """Held out 2026-12-02 (a fuzz of the API): a file without a newline was taken for a checkpoint killed while
+    writing its header, truncated and overwritten."""
+    precious = tmp_path / "notes.txt"
+    precious.write_text("precious")
+    with pytest.raises(InputError, match="not a meshreg checkpoint"):
+        Checkpoint(precious, key="ab12")
+    assert precious.read_text() == "precious"
+    for cut in ("", '{"ke', '{"key": "ab', '{"key": "ab12"}'):  # a run killed at its start: begun afresh
+        path = tmp_path / "cut.jsonl"
+        path.write_text(cut)
+        Checkpoint(path, key="ab12").close()
+        assert path.read_text() == '{"key": "ab12"}\n'
+
+
 def _write_collection(tmp_path, n=21):
     files = []
     for k, g in enumerate(_grids(n) + [sample(sine(3), n, n)]):
