@@ -26,7 +26,7 @@ import numpy as np
 from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
-from .files import existing_file, remove_outputs, staged, write_atomic
+from .files import existing_file, output_dir, remove_outputs, staged, write_atomic
 from .options import Options
 from .ownership import recorded, refuse_foreign, writing
 from .shape_atlas import atlas
@@ -129,16 +129,10 @@ def atlas_files(
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
         raise InputError(f"no such file: {', '.join(missing)}")
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out} exists and is not a directory: give another -o")
     names = member_names(files)
-    written = [out / n for n in (TEMPLATE_FILE, ATLAS_FILE, MODES_FILE, SCORES_FILE)]
-    written += [out / ALIGNED_DIR / f"{_file_stem(name)}.ply" for name in names]
-    clash = {f.resolve() for f in files} & {f.resolve() for f in written}
-    if clash:
-        raise InputError(f"{sorted(clash)[0]} is an input file: write the atlas to another directory")
-    refuse_foreign(out, [f.relative_to(out) for f in written])
-    out.mkdir(parents=True, exist_ok=True)
+    written = [Path(n) for n in (TEMPLATE_FILE, ATLAS_FILE, MODES_FILE, SCORES_FILE)]
+    written += [Path(ALIGNED_DIR) / f"{_file_stem(name)}.ply" for name in names]
+    output_dir(out, written, files)  # before the registrations: a place that cannot take the atlas is refused now
     checkpoint = out / CHECKPOINT_DIR
     with scheduler_client(scheduler, f"finished registrations are kept in {checkpoint}") as client:
         result = atlas(
@@ -249,11 +243,9 @@ def morph_files(first, second, out, *, mode: int | None = None, frames: int = 24
         raise InputError(f"{out}: the morph is written as a GIF: give a file name ending in .gif")
     if frames < 2:
         raise InputError(f"frames must be at least 2, got {frames}")
-    for given in (first, second):
-        if given is not None:
-            existing_file(given)
+    given = [existing_file(f) for f in (first, second) if f is not None]
+    output_dir(out.parent, [out.name], given, own_only=False)  # the file is the user's to name, as a matrix's
     shapes, faces = morph_frames(first, second, mode=mode, frames=frames, options=options)
-    out.parent.mkdir(parents=True, exist_ok=True)
     title = f"mode {mode}: -2 to +2 sd" if mode else f"{Path(first).stem} to {Path(second).stem}"
     # whole or not at all: matplotlib's writer saves the frames grabbed so far when it is interrupted
     return write_atomic(out, lambda tmp: write_morph(shapes, faces, tmp, title=title))

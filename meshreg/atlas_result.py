@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .files import read_npz
 
 
 @dataclass
@@ -114,13 +115,10 @@ class Atlas:
     @classmethod
     def load(cls, path) -> Atlas:
         """Read an atlas written by :meth:`save`."""
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                values = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as err:
-            raise InputError(f"{path}: not a meshreg atlas file ({err})") from None
-        if "modes" not in values or "template" not in values:
-            raise InputError(f"{path}: not a meshreg atlas file (no template or modes)")
+        values = read_npz(path, "atlas")
+        missing = sorted({f.name for f in fields(cls)} - set(values))
+        if missing:
+            raise InputError(f"{path}: not a meshreg atlas file (no {', '.join(missing[:3])})")
         values["names"] = values["names"].tolist()
         for key in ("failures", "params", "timings"):
             values[key] = json.loads(str(values[key]))

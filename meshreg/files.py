@@ -18,9 +18,12 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import zipfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+import numpy as np
 
 from .errors import InputError, RunError
 from .ownership import forget, record, refuse_foreign
@@ -114,8 +117,29 @@ def write_atomic(path, write: Callable[[Path], object]) -> Path:
     except OSError as err:
         raise RunError(f"cannot write {path} ({reason(err)})") from err
     finally:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # a read-only file system, where the temporary could not be made either
+            pass
     return path
+
+
+def read_npz(path, what: str) -> dict:
+    """Every array of the NumPy archive ``path`` (read whole, no pickles), or one InputError that names the file
+    as not a meshreg ``what`` file: unreadable, cut, damaged, a single array (.npy) or not NumPy's at all."""
+    try:
+        data = np.load(path, allow_pickle=False)
+    except OSError as err:
+        raise InputError(f"{path}: cannot read it as a meshreg {what} file ({reason(err)})") from None
+    except (ValueError, EOFError, zipfile.BadZipFile):
+        raise InputError(f"{path}: not a meshreg {what} file (not a NumPy .npz archive)") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise InputError(f"{path}: not a meshreg {what} file (a single array, not an .npz archive)")
+    try:
+        with data:
+            return {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
+        raise InputError(f"{path}: not a meshreg {what} file (a damaged archive: {type(err).__name__})") from None
 
 
 @contextmanager

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .files import output_dir, remove_outputs, staged, surface_kind, write_atomic
+from .files import output_dir, read_npz, remove_outputs, staged, surface_kind, write_atomic
 from .options import Options
 from .ownership import refuse_foreign, writing
 from .painter import Painter
@@ -202,6 +202,21 @@ def write_mesh_registration(
     return Written(result, [out / name for name in names], _mesh_notes(mr.info))
 
 
+def _written_mesh(path: Path):
+    """A coloured mesh that ``meshreg register`` wrote (trimesh, as stored), or InputError when it cannot be read."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, process=False, maintain_order=True)
+    except Exception as err:  # noqa: BLE001 - trimesh's readers raise many kinds on a damaged file
+        raise InputError(
+            f"{path}: cannot read this mesh ({type(err).__name__}: {err}): rerun meshreg register"
+        ) from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError(f"{path}: not a triangle mesh: rerun meshreg register")
+    return mesh
+
+
 def _set_up_numba() -> None:
     """Run one small B-spline evaluation (a cached numba kernel every registration loads) before the figure worker
     forks: numba's own set-up (0.2-0.5 s once per process, the first time a cached kernel is loaded) is then done
@@ -281,8 +296,6 @@ def run_demo(out, options: Options | None = None, callback: Progress | None = No
 
 def view_outputs(out) -> Path:
     """``meshreg view OUT``: the interactive page ``OUT/view.html`` of a mesh registration written to ``OUT``."""
-    import trimesh
-
     from .view import write_view
 
     out = Path(out)
@@ -293,12 +306,18 @@ def view_outputs(out) -> Path:
     if missing:
         raise InputError(f"{out} holds no mesh registration (missing {', '.join(missing)}): run meshreg register first")
     refuse_foreign(out, [VIEW_FILE], "move or delete it first")
-    meshes = [trimesh.load(p, process=False, maintain_order=True) for p in names[:2]]
-    with np.load(names[2], allow_pickle=False) as data:
-        if "matched_first" not in data:
-            raise InputError(f"{names[2]} has no per-vertex correspondence: rerun meshreg register")
-        matches = (data["matched_first"], data["matched_second"])
-        transform, energy = data["transform"], float(data["energy"])
+    meshes = [_written_mesh(p) for p in names[:2]]
+    data = read_npz(names[2], "result")
+    if not {"matched_first", "matched_second", "transform", "energy"} <= set(data):
+        raise InputError(f"{names[2]} has no per-vertex correspondence: rerun meshreg register")
+    matches = (data["matched_first"], data["matched_second"])
+    transform, energy = data["transform"], float(data["energy"])
+    for path, mesh, matched in zip(names[:2], meshes, matches, strict=True):
+        if len(matched) != len(mesh.vertices):
+            raise InputError(
+                f"{path} has {len(mesh.vertices)} vertices, {names[2]} matches {len(matched)}: the files are not of "
+                "one run; rerun meshreg register"
+            )
     first, second = ((m.vertices, m.faces, m.visual.vertex_colors[:, :3] / 255.0) for m in meshes)
     title = f"E = {energy:.3g}: hover a point to see its match"
     with writing(out, [VIEW_FILE]):

@@ -155,8 +155,18 @@ def test_save_load_round_trip(tmp_path):
     assert back.names == result.names and back.params == result.params and back.grid == result.grid
     assert np.array_equal(back.h, result.h) and np.array_equal(back.modes, result.modes)
     np.testing.assert_allclose(back.shapes().mean(axis=0), back.mean, atol=1e-12)
-    with pytest.raises(InputError, match="not a meshreg atlas"):
+    with pytest.raises(InputError, match="meshreg atlas file .No such file"):
         Atlas.load(tmp_path / "missing.npz")
+    # held out 2026-12-02 (a fuzz): a single array (meshreg morph GRID.npy --mode 1) and a cut archive gave tracebacks
+    np.save(tmp_path / "grid.npy", np.zeros((3, 3, 3)))
+    (tmp_path / "cut.npz").write_bytes((tmp_path / "atlas.npz").read_bytes()[:5000])
+    (tmp_path / "junk.npz").write_text("not numpy")
+    np.savez(tmp_path / "other.npz", modes=np.zeros(3), template=np.zeros(3))
+    for name, words in [("grid.npy", "a single array"), ("cut", "not a NumPy .npz"), ("junk", "not a NumPy .npz")]:
+        with pytest.raises(InputError, match=f"not a meshreg atlas file .{words}"):
+            Atlas.load(tmp_path / (name if "." in name else f"{name}.npz"))
+    with pytest.raises(InputError, match="not a meshreg atlas file .no aligned"):
+        Atlas.load(tmp_path / "other.npz")
 
 
 def _write_grids(tmp_path, grids):

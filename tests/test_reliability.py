@@ -386,6 +386,38 @@ def test_bad_output_place_is_refused_before_computing(tmp_path, grids, where, wo
     assert a.read_bytes() == before and sorted(tmp_path.rglob("*")) == listing  # nothing written anywhere
 
 
+def test_atlas_and_morph_refuse_a_place_they_cannot_write_before_computing(tmp_path, grids, monkeypatch):
+    """Held out 2026-12-02 (a fuzz): ``meshreg atlas`` into a read-only place computed everything and then failed
+    with a traceback from mkdir, and ``meshreg morph`` into one failed the same way after drawing its frames."""
+    import meshreg.atlas_outputs as outputs
+
+    def computed(*args, **kwargs):
+        raise AssertionError("computed before the output place was checked")
+
+    monkeypatch.setattr(outputs, "atlas", computed)
+    monkeypatch.setattr(outputs, "morph_frames", computed)
+    inputs = [grids / "a.npy", grids / "b.npy"]
+    places = [(grids / "a.npy" / "out", "cannot make the output directory")]
+    if os.geteuid() == 0 and Path("/sys/kernel").is_dir():  # root writes anywhere but in /sys
+        places.append((Path("/sys/kernel/meshreg-out"), "give another -o"))
+    for out, words in places:
+        with pytest.raises(InputError, match=words):
+            atlas_files(inputs, out)
+        with pytest.raises(InputError, match=words):
+            outputs.morph_files(*inputs, out / "m.gif")
+
+
+def test_a_temporary_that_cannot_be_removed_leaves_the_write_error(tmp_path, monkeypatch):
+    """On a read-only file system removing write_atomic's temporary fails too: the error is still the write's."""
+
+    def read_only(*args, **kwargs):
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(Path, "unlink", read_only)
+    with pytest.raises(RunError, match="cannot write .*Read-only file system"):
+        files.write_atomic(tmp_path / "x.gif", read_only)
+
+
 def test_a_failed_write_leaves_neither_partial_nor_older_outputs(tmp_path, grids, capsys, monkeypatch):
     out = tmp_path / "out"
     args = ["register", grids / "a.npy", grids / "b.npy", "-o", out, "-q", "--mode", "dp"]

@@ -57,6 +57,26 @@ def test_view_command_rewrites_the_page(registered):
 
 
 @pytest.mark.slow
+def test_view_of_damaged_outputs_says_what_is_wrong(registered, tmp_path):
+    """Held out 2026-12-02 (a fuzz of the command line): a cut result.npz or an unreadable first.ply gave tracebacks,
+    and a first.ply of another mesh a page of wrong matches."""
+    import shutil
+
+    damages = {
+        "cut": ("result.npz", lambda p: p.write_bytes(p.read_bytes()[:3000]), "not a meshreg result file"),
+        "junk": ("first.ply", lambda p: p.write_text("junk"), "cannot read this mesh"),
+        "other": ("first.ply", lambda p: trimesh.creation.box().export(p), "not of one run"),
+    }
+    for name, (victim, damage, words) in damages.items():
+        out = tmp_path / name
+        shutil.copytree(registered, out)
+        (out / "view.html").unlink()
+        damage(out / victim)
+        proc = subprocess.run([sys.executable, "-m", "meshreg.cli", "view", str(out)], capture_output=True, text=True)
+        assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr, (name, proc.stderr)
+        assert not (out / "view.html").exists()
+
+
 def test_page_draws_both_meshes_and_marks_the_match_in_a_real_browser(registered):
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
