@@ -262,7 +262,8 @@ def overlap_note(overlap: dict) -> str:
     if overlap["regime"] == "whole":
         return f"overlap: {share} at the best pose, not trusted ({overlap['reason']}); registered whole"
     how = "the same surface" if overlap["regime"] == "rigid" else "a deformed surface"
-    return f"overlap: {share} ({how}); only the common region registered, vertices outside it unmatched (grey)"
+    unused = f"; not used for it: {', '.join(overlap['unused'])}" if overlap.get("unused") else ""
+    return f"overlap: {share} ({how}); only the common region registered, vertices outside it unmatched (grey){unused}"
 
 
 def run_demo(out, options: Options | None = None, callback: Progress | None = None, html: bool = True) -> Written:

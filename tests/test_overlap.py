@@ -11,6 +11,7 @@ from scipy.spatial import Delaunay
 from scipy.spatial.transform import Rotation
 
 from meshreg import Options
+from meshreg.errors import InputError
 from meshreg.mesh import deform
 from meshreg.mesh.align import align, areas_scale
 from meshreg.mesh.correspond import register_meshes
@@ -30,6 +31,7 @@ from meshreg.mesh.overlap import (
 )
 from meshreg.mesh.surface import Surface, transform_points
 from meshreg.mesh.topology import prepare_disk, triangle_areas
+from meshreg.outputs import overlap_note
 from meshreg.result import Registration
 
 SHEET = {"n_first": 500, "n_second": 700}
@@ -246,6 +248,24 @@ def test_two_remeshings_of_a_spherical_cap_are_not_a_partial_overlap():
     # the true point of each first vertex: the same spot of the sphere, moved
     error = np.linalg.norm(mr.result.correspondence() - (2.5 * v1 @ rotation.T + [3.0, -1.0, 0.5]), axis=1)
     assert np.all(np.isfinite(error)) and np.median(error) < 0.01 * 2.5 * 2
+
+
+def test_corners_are_checked_and_reported_unused_on_a_partial_overlap():
+    """Held out 2026-12-02 (a fuzz): corners given for a pair that the overlap check registers only where it overlaps
+    were neither checked nor used, silently: a vertex id that is not in the mesh passed."""
+    p = pair("corner-64%")
+    with pytest.raises(InputError, match="corners1: vertex ids .10000000. are not in"):
+        register_meshes(p.first, p.second, Options(resolution=21, corners1=(0, 1, 2, 10_000_000)))
+    second = prepare_disk(*p.second)
+    inside = np.setdiff1d(np.arange(len(second.vertices)), second.boundary)[:4]
+    with pytest.raises(InputError, match="corners2: corners must be 4 distinct vertex ids on the boundary"):
+        register_meshes(p.first, p.second, Options(resolution=21, corners2=tuple(second.vertex_map[inside].tolist())))
+    first = prepare_disk(*p.first)
+    corners = tuple(first.vertex_map[first.boundary[:: len(first.boundary) // 4][:4]].tolist())
+    mr = register_meshes(p.first, p.second, Options(resolution=21, corners1=corners, mode="dp"))
+    assert mr.result.info["overlap"]["regime"] == "rigid"
+    assert mr.result.info["overlap"]["unused"] == [f"corners1 {corners}", "mode 'dp'"]
+    assert "not used for it: corners1" in overlap_note(mr.result.info["overlap"])
 
 
 def test_overlap_off_and_bad_values():

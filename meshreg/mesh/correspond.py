@@ -16,7 +16,7 @@ from ..pipeline import register_grids
 from ..result import Registration
 from ..schedule import Progress
 from .corners import corner_positions
-from .harmonic import HarmonicMap, edge_length
+from .harmonic import HarmonicMap, edge_length, given_corners
 from .overlap import rigid_overlap, warped_overlap
 from .partial import register_overlap
 from .resample import blur_grid, blur_sigma, resample_grid
@@ -108,6 +108,7 @@ def register_meshes(
     for name, mesh in zip(("first", "second"), meshes, strict=True):
         try:
             disk = prepare_disk(mesh.vertices, mesh.faces, cleanup=options.cleanup)
+            _check_corners(disk, options, name)
             maps.append(HarmonicMap(disk, options.weights))
         except InputError as err:
             raise InputError(f"{mesh.name}: {err}") from None
@@ -134,6 +135,19 @@ def register_meshes(
     spent = whole.result.timings
     timings = {**spent, "overlap": found.seconds, "total": spent.get("total", 0.0) + found.seconds}
     return replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
+
+
+def _check_corners(disk: DiskMesh, options: Options, name: str) -> None:
+    """InputError naming the option when the corners given for the ``name`` ("first" or "second") mesh are not four
+    distinct vertices of its boundary in their order around it: checked whichever way the pair is registered (the
+    overlap's path does not use them)."""
+    option = "corners1" if name == "first" else "corners2"
+    ids = getattr(options, option)
+    if ids is not None:
+        try:
+            given_corners(disk, disk.input_ids(ids))
+        except InputError as err:
+            raise InputError(f"{option}: {err}") from None
 
 
 def _assembled(maps: list[HarmonicMap]) -> None:

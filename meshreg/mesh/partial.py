@@ -74,7 +74,7 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
         infos[name]["overlap"] = disk.report
     infos["first"].update(corner_info)
     infos["second"].update(_layout_report(uv2, trimmed2.faces))
-    infos["overlap"] = overlap.summary()
+    infos["overlap"] = {**overlap.summary(), "unused": _unused_settings(options)}
     seconds = time.perf_counter() - start
     result = Registration(
         rotation=rotation,
@@ -96,6 +96,19 @@ def register_overlap(first, second, overlap: Overlap, n_input: tuple[int, int], 
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip((trimmed1, trimmed2), (uv1, uv2), n_input, strict=True)]
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos))
     return MeshRegistration(trimmed1, trimmed2, uv1, uv2, (grid1, grid2), result, infos, matches=uv2)
+
+
+def _unused_settings(options: Options) -> list[str]:
+    """The settings given for a whole-mesh registration that a registration of the common region does not use: it
+    takes its corners from the trimmed first mesh, and its pose and matches from the overlap check."""
+    unused = [
+        f"{name} {getattr(options, name)}" for name in ("corners1", "corners2") if getattr(options, name) is not None
+    ]
+    if options.mode != "auto":
+        unused.append(f"mode {options.mode!r}")
+    if options.symmetry is not None:
+        unused.append(f"symmetry {options.symmetry}")
+    return unused
 
 
 def _on_the_rim(
