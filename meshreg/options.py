@@ -312,7 +312,8 @@ class Options:
         it off. Default 3.
     smoothing : tuple of float
         Mode "gd": a third path descends through both surfaces blurred by Gaussians of these standard
-        deviations (side lengths of the square, largest first); () turns it off. Default (0.1,).
+        deviations (side lengths of the square, largest first; one number is one level); () turns it off.
+        Default (0.1,).
     resolution : int
         Meshes are resampled on ``resolution`` x ``resolution`` grids. Default 101.
     weights : {"mean-value", "cotangent"}
@@ -415,9 +416,13 @@ class Options:
         _integer("resolution", self.resolution, 3, 100_000)
         _integer("corner_search", self.corner_search, 0, 1000)
         _number("bend_window", self.bend_window, 0.0, 1.0)
-        smoothing = tuple(self.smoothing)
-        if not all(isinstance(s, (int, float)) and math.isfinite(s) and 0 < s <= 1 for s in smoothing):
-            raise InputError(f"smoothing must be standard deviations in (0, 1] (side lengths), got {smoothing}")
+        smoothing = (self.smoothing,) if isinstance(self.smoothing, (int, float)) else self.smoothing
+        try:
+            smoothing = tuple(smoothing)
+        except TypeError:
+            smoothing = (self.smoothing,)  # refused below: not a number
+        if not all(_real(s) and 0 < s <= 1 for s in smoothing):
+            raise InputError(f"smoothing must be standard deviations in (0, 1] (side lengths), got {self.smoothing!r}")
         object.__setattr__(self, "smoothing", tuple(float(s) for s in smoothing))
         for name in ("corners1", "corners2"):
             value = getattr(self, name)
@@ -480,8 +485,13 @@ def _integer(name: str, value, low: int, high: int) -> None:
         raise InputError(f"{name} must be an integer from {low} to {high}, got {value!r}")
 
 
+def _real(value) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _number(name: str, value, low: float, high: float, low_open: bool = False) -> None:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    ok = _real(value)
     if not ok or value < low or (low_open and value == low) or value > high:
         bound = f"({low}" if low_open else f"[{low}"
         raise InputError(f"{name} must be a finite number in {bound}, {high}], got {value!r}")

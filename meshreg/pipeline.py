@@ -165,6 +165,8 @@ def register_with(first, second, options: Options, callback: Progress | None = N
     matrix call this); ``first``, ``second``: two grids or two meshes in any form :func:`~.surfaces.as_input` takes."""
     if not isinstance(options, Options):
         raise InputError(f"options must be a meshreg.Options, got {type(options).__name__}")
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be a function of (stage, iteration, energy), got {type(callback).__name__}")
     a, b = as_input(first, "first"), as_input(second, "second")
     if isinstance(a, Mesh) != isinstance(b, Mesh):
         raise InputError("give two meshes or two grids, not one of each")

@@ -240,6 +240,8 @@ class Registration:
         first = self._sides()[0]
         where = np.asarray(where)
         if where.ndim == 2 and where.shape[1] == 3 and where.dtype.kind in "fiu":  # integer coordinates too
+            if not np.all(np.isfinite(where)):
+                raise InputError("correspondence takes finite points: drop the rows with NaN or inf")
             return first.uv_of_points(where.astype(float))[0]
         if where.ndim != 1 or not np.issubdtype(where.dtype, np.integer):
             raise InputError("correspondence takes vertex ids (k,) or points (k, 3) of the first surface")

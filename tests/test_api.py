@@ -87,6 +87,8 @@ def test_correspondence_by_ids_by_points_and_barycentric(pair, result):
     # integer coordinates are points too (held out 2026-12-01: refused as "vertex ids (k,) or points (k, 3)")
     corner = np.round(v1[ids[:1]]).astype(np.int64)
     assert np.allclose(result.correspondence(corner), result.correspondence(corner.astype(float)))
+    with pytest.raises(InputError, match="finite points"):  # held out 2026-12-02: scipy's KD-tree error before
+        result.correspondence(np.array([[np.nan, 0.0, 0.0]]))
 
 
 def test_vertex_pairs_distances_fitness_and_inlier_rmse(pair, result):

@@ -549,9 +549,12 @@ def test_bad_matrix_parameters_one_line_before_any_work(tmp_path, grids, capsys,
 
 
 def test_other_api_parameters_are_checked():
-    for changes in ({"search": "no"}, {"corners1": (1, 1, 2, 3)}, {"force": 1}):
+    for changes in ({"search": "no"}, {"corners1": (1, 1, 2, 3)}, {"force": 1}, {"smoothing": None}):
         with pytest.raises(InputError, match=next(iter(changes))):
             Options(**changes)
+    assert Options(smoothing=0.2).smoothing == (0.2,)  # one number for one level (held out 2026-12-02: TypeError)
+    with pytest.raises(InputError, match="callback must be a function"):
+        meshreg.register(sample(sine(2), 11, 11), sample(sine(2), 11, 11), callback=5)
     with pytest.raises(InputError, match="jobs"):
         distance_matrix([sample(sine(2), 11, 11)] * 2, jobs=0)
     with pytest.raises(InputError, match="grid must be an integer from 3"):
