@@ -27,6 +27,7 @@ from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
 from .errors import InputError
 from .files import existing_file, output_dir, remove_outputs, staged, write_atomic
+from .limits import check_frames
 from .options import Options
 from .ownership import recorded, refuse_foreign, writing
 from .shape_atlas import atlas
@@ -241,8 +242,7 @@ def morph_files(first, second, out, *, mode: int | None = None, frames: int = 24
     out = Path(out)
     if out.suffix.lower() != ".gif":
         raise InputError(f"{out}: the morph is written as a GIF: give a file name ending in .gif")
-    if frames < 2:
-        raise InputError(f"frames must be at least 2, got {frames}")
+    check_frames(frames, options is not None and options.force)
     given = [existing_file(f) for f in (first, second) if f is not None]
     output_dir(out.parent, [out.name], given, own_only=False)  # the file is the user's to name, as a matrix's
     shapes, faces = morph_frames(first, second, mode=mode, frames=frames, options=options)

@@ -634,6 +634,8 @@ def test_a_missing_morph_input_is_named(tmp_path):
         morph_files(tmp_path / "nope.ply", None, tmp_path / "m.gif")
     with pytest.raises(InputError, match="is a directory"):
         morph_files(tmp_path, tmp_path, tmp_path / "m.gif")
+    with pytest.raises(InputError, match="100000 frames would take about"):  # held out 2026-12-02: hours of drawing
+        morph_files(tmp_path / "nope.ply", None, tmp_path / "m.gif", frames=100_000)
 
 
 @pytest.mark.parametrize(
