@@ -308,6 +308,11 @@ def read_grid(path, shape: tuple[int, int] | None = None) -> GridSurface:
     except OSError as err:
         raise InputError(f"{path}: cannot read grid file ({err.strerror or err})") from None
     except (ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
+        if "pickle" in str(err):  # numpy's advice to load it unsafely does not apply: meshreg never unpickles
+            raise InputError(
+                f"{path}: not a NumPy {suffix} file of numbers (.npy: np.save of an (M, N, 3) array; .npz: np.savez "
+                "with 'points')"
+            ) from None
         raise InputError(f"{path}: cannot read grid file ({type(err).__name__}: {err})") from None
 
 

@@ -268,6 +268,8 @@ class Registration:
         (a temporary name in the same directory, then a rename); like numpy, ``.npz`` is appended to a path
         without it."""
         path = Path(path)
+        if path.is_dir():  # numpy's rule would write PATH.npz beside the directory
+            raise InputError(f"{path} is a directory: give a file name, e.g. {path / 'result.npz'}")
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
         write_atomic(path, lambda tmp: self._save(tmp, **extra))
