@@ -52,7 +52,11 @@ def atlas_summary(written) -> str:
         f"spread         {100 * result.params['spread']:.3g}% of the template's size (RMS distance of the aligned "
         "members' vertices from the mean's, sizes equalized)",
         "explained      "
-        + ", ".join(f"mode {m + 1} {100 * e:.1f}%" for m, e in enumerate(result.explained[: min(k, 5)])),
+        + (
+            ", ".join(f"mode {m + 1} {100 * e:.1f}%" for m, e in enumerate(result.explained[: min(k, 5)]))
+            if any(e > 0 for e in result.explained)
+            else "no mode: the aligned members are the same shape"
+        ),
         f"time (s)       total {result.timings['total']:.1f}, per member {result.timings['per_member']:.2f} "
         f"(medoid {result.timings['medoid']:.1f}, iterations {result.timings['iterations']:.1f})",
     ]
