@@ -178,7 +178,7 @@ def write_mesh_registration(
                 c2,
                 title=f"{title}: corresponding points share a colour and a checkerboard square",
                 second_to_first=np.linalg.inv(result.transform),
-                distance=result.distances(on_second) / np.sqrt(result.second.area()),
+                distance=result.distances() / np.sqrt(result.second.area()),
             )
             # result.correspondence_on_first(), from the second's matches on the first's square already found
             on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]

@@ -210,14 +210,14 @@ class Registration:
         _, nearest = cKDTree(second.vertices[second.input_index[kept]]).query(points[has])
         return np.c_[has, kept[nearest]]
 
-    def distances(self, matched: np.ndarray | None = None) -> np.ndarray:
+    def distances(self) -> np.ndarray:
         """Per vertex of the first surface as given, the distance (second's units) from the vertex moved by
         :attr:`transform` to its matched point, shape (n1,); NaN where there is no match. Near 0 everywhere for
-        two meshes of one surface; large where the shapes differ. ``matched``: :meth:`correspondence` (n1, 3) when
-        already computed (else computed here)."""
+        two meshes of one surface; large where the shapes differ."""
         first = self._sides()[0]
-        matched = self.correspondence() if matched is None else matched
-        return np.linalg.norm(self.aligned(first.vertices[np.maximum(first.input_index, 0)]) - matched, axis=1)
+        return np.linalg.norm(
+            self.aligned(first.vertices[np.maximum(first.input_index, 0)]) - self.correspondence(), axis=1
+        )
 
     def inlier_threshold(self, fraction: float = INLIER_DISTANCE) -> float:
         """``fraction`` of sqrt(area of the second surface): the default distance of an inlier."""
