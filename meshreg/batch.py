@@ -20,7 +20,6 @@ import hashlib
 import json
 import os
 import time
-import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -28,7 +27,7 @@ import numpy as np
 
 from .checkpoint import CHECKPOINT_SUFFIX, Checkpoint, _digest
 from .errors import InputError, RunError
-from .files import surface_kind, write_atomic
+from .files import read_npz, surface_kind, write_atomic
 from .grid import GridSurface, read_grid
 from .limits import check_jobs
 from .options import Options
@@ -183,28 +182,28 @@ class DistanceMatrix:
     @classmethod
     def load(cls, path) -> DistanceMatrix:
         """Read a matrix written by :meth:`save` (InputError when the file is not one)."""
+        data = read_npz(path, "distance matrix")
         try:
-            with np.load(path, allow_pickle=False) as data:
-                failures = {}
-                for line in data["failures"].tolist():
-                    i, j, reason = line.split(" ", 2)
-                    failures[int(i), int(j)] = reason
-                skipped = {}
-                for line in data["skipped"].tolist() if "skipped" in data else []:
-                    k, reason = line.split(" ", 1)
-                    skipped[int(k)] = reason
-                return cls(
-                    data["files"].tolist(),
-                    data["distance"],
-                    data["energy"],
-                    data["rotations"],
-                    data["seconds"],
-                    failures,
-                    json.loads(str(data["params"])),
-                    skipped,
-                    data["residual"] if "residual" in data else np.full(data["distance"].shape, np.nan),
-                )
-        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as err:
+            failures = {}
+            for line in data["failures"].tolist():
+                i, j, reason = line.split(" ", 2)
+                failures[int(i), int(j)] = reason
+            skipped = {}
+            for line in data["skipped"].tolist() if "skipped" in data else []:
+                k, reason = line.split(" ", 1)
+                skipped[int(k)] = reason
+            return cls(
+                data["files"].tolist(),
+                data["distance"],
+                data["energy"],
+                data["rotations"],
+                data["seconds"],
+                failures,
+                json.loads(str(data["params"])),
+                skipped,
+                data["residual"] if "residual" in data else np.full(data["distance"].shape, np.nan),
+            )
+        except (KeyError, ValueError, TypeError, AttributeError) as err:
             raise InputError(f"{path}: not a meshreg distance matrix file ({type(err).__name__}: {err})") from None
 
 

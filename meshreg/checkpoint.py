@@ -120,7 +120,8 @@ class Checkpoint:
 def _cut_header(data: bytes) -> bool:
     """Whether ``data`` (a file without a newline) is empty or the start of a checkpoint's header line
     ``{"key": "<hex digest>"}``: what a run killed before its header was written leaves. Anything else is someone's
-    file, not to be truncated."""
+    file, not to be truncated. (The keys of meshreg's runs are sha256 hex digests; a key of other characters would
+    have its cut header refused, not lost.)"""
     opening = b'{"key": "'
     return (
         opening.startswith(data[: len(opening)])

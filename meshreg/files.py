@@ -132,7 +132,7 @@ def read_npz(path, what: str) -> dict:
     except OSError as err:
         raise InputError(f"{path}: cannot read it as a meshreg {what} file ({reason(err)})") from None
     except (ValueError, EOFError, zipfile.BadZipFile):
-        raise InputError(f"{path}: not a meshreg {what} file (not a NumPy .npz archive)") from None
+        raise InputError(f"{path}: not a meshreg {what} file (not a NumPy .npz archive, or a cut one)") from None
     if not isinstance(data, np.lib.npyio.NpzFile):
         raise InputError(f"{path}: not a meshreg {what} file (a single array, not an .npz archive)")
     try:

@@ -24,6 +24,7 @@ within a factor of two; ``/usr/bin/time`` of :func:`meshreg.register` in mode "a
 
 from __future__ import annotations
 
+import operator
 import os
 from typing import TYPE_CHECKING
 
@@ -160,11 +161,15 @@ def check_jobs(jobs: int | None, force: bool = False) -> int:
 def check_frames(frames: int, force: bool = False) -> None:
     """A morph of ``frames`` frames one way (2 ``frames`` - 2 images): at least 2, at most :data:`MAX_MORPH_FRAMES`
     unless ``force`` (each image is drawn and encoded: :data:`MORPH_SECONDS_PER_IMAGE`)."""
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 2:
+    try:
+        count = operator.index(frames)  # ints and numpy's integers, not 2.5
+    except TypeError:
+        count = None
+    if count is None or isinstance(frames, bool) or count < 2:
         raise InputError(f"frames must be an integer of at least 2, got {frames!r}")
-    if frames > MAX_MORPH_FRAMES and not force:
-        seconds = (2 * frames - 2) * MORPH_SECONDS_PER_IMAGE
+    if count > MAX_MORPH_FRAMES and not force:
+        seconds = (2 * count - 2) * MORPH_SECONDS_PER_IMAGE
         raise InputError(
-            f"{frames} frames would take about {seconds:.0f} s to draw (limit {MAX_MORPH_FRAMES} frames): "
-            "give fewer, or force=True in the API"
+            f"{count} frames would take about {seconds:.0f} s to draw (limit {MAX_MORPH_FRAMES} frames): give "
+            "fewer, or in the API options=Options(force=True)"
         )

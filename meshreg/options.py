@@ -416,11 +416,9 @@ class Options:
         _integer("resolution", self.resolution, 3, 100_000)
         _integer("corner_search", self.corner_search, 0, 1000)
         _number("bend_window", self.bend_window, 0.0, 1.0)
-        smoothing = (self.smoothing,) if isinstance(self.smoothing, (int, float)) else self.smoothing
-        try:
-            smoothing = tuple(smoothing)
-        except TypeError:
-            smoothing = (self.smoothing,)  # refused below: not a number
+        given = self.smoothing
+        listed = hasattr(given, "__iter__") and not isinstance(given, (str, bytes))
+        smoothing = (given,) if _real(given) else tuple(given) if listed else (None,)
         if not all(_real(s) and 0 < s <= 1 for s in smoothing):
             raise InputError(f"smoothing must be standard deviations in (0, 1] (side lengths), got {self.smoothing!r}")
         object.__setattr__(self, "smoothing", tuple(float(s) for s in smoothing))

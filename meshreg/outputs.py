@@ -218,9 +218,10 @@ def _written_mesh(path: Path):
 
 
 def _set_up_numba() -> None:
-    """Run one small B-spline evaluation (a cached numba kernel every registration loads) before the figure worker
-    forks: numba's own set-up (0.2-0.5 s once per process, the first time a cached kernel is loaded) is then done
-    once, here, and inherited by the worker instead of done again there beside the registration."""
+    """Run one small B-spline evaluation (the bicubic values kernel, which every registration loads) before the
+    figure worker forks: numba's own set-up (0.2-0.5 s once per process, the first time a cached kernel is loaded)
+    is then done once, here, and inherited by the worker instead of done again there beside the registration; the
+    other kernels are loaded where they are first called."""
     from .spline import GridInterpolator
 
     nodes = np.linspace(0.0, 1.0, 4)
@@ -309,8 +310,9 @@ def view_outputs(out) -> Path:
     refuse_foreign(out, [VIEW_FILE], "move or delete it first")
     meshes = [_written_mesh(p) for p in names[:2]]
     data = read_npz(names[2], "result")
-    if not {"matched_first", "matched_second", "transform", "energy"} <= set(data):
-        raise InputError(f"{names[2]} has no per-vertex correspondence: rerun meshreg register")
+    missing = sorted({"matched_first", "matched_second", "transform", "energy"} - set(data))
+    if missing:
+        raise InputError(f"{names[2]} lacks {', '.join(missing)} (not a mesh registration's): rerun meshreg register")
     matches = (data["matched_first"], data["matched_second"])
     transform, energy = data["transform"], float(data["energy"])
     for path, mesh, matched in zip(names[:2], meshes, matches, strict=True):

@@ -4,7 +4,6 @@ format (``result.npz``)."""
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -13,7 +12,7 @@ import numpy as np
 
 from .correspondence import Side, h_at, inverse_uv
 from .errors import InputError
-from .files import write_atomic
+from .files import read_npz, write_atomic
 from .residual import is_mirrored
 
 INLIER_DISTANCE = 0.01  # default inlier threshold of fitness and inlier_rmse, as a fraction of sqrt(area of second)
@@ -267,11 +266,11 @@ class Registration:
         """Write the result to ``path`` (``.npz``; keys listed in docs/outputs.md), plus ``extra`` arrays, atomically
         (a temporary name in the same directory, then a rename); like numpy, ``.npz`` is appended to a path
         without it."""
-        path = Path(path)
-        if path.is_dir():  # numpy's rule would write PATH.npz beside the directory
-            raise InputError(f"{path} is a directory: give a file name, e.g. {path / 'result.npz'}")
+        given = path = Path(path)
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
+        if given.is_dir() or path.is_dir():  # numpy's rule would write PATH.npz beside a directory PATH
+            raise InputError(f"{path if path.is_dir() else given} is a directory: give a file name")
         write_atomic(path, lambda tmp: self._save(tmp, **extra))
 
     def _save(self, path, **extra) -> None:
@@ -309,32 +308,30 @@ class Registration:
     @classmethod
     def load(cls, path) -> Registration:
         """Read a result written by :meth:`save`."""
+        data = read_npz(path, "result")
         try:
-            with np.load(path, allow_pickle=False) as data:
-                return cls(
-                    rotation=data["R"],
-                    h=data["h"],
-                    energy=float(data["energy"]),
-                    energy_dp=float(data["energy_dp"]),
-                    energy_history=data["energy_history"],
-                    r=data["r"],
-                    t=data["t"],
-                    mode=str(data["mode"]),
-                    params=json.loads(str(data["params"])),
-                    timings=json.loads(str(data["timings"])),
-                    symmetry=int(data["symmetry"]) if "symmetry" in data else 0,
-                    energy_stages=tuple(data["energy_stages"].tolist()) if "energy_stages" in data else (),
-                    transform=data["transform"] if "transform" in data else np.eye(4),
-                    first=_side(data, "first"),
-                    second=_side(data, "second"),
-                    info=json.loads(str(data["info"])) if "info" in data else {},
-                    residual=float(data["residual"]) if "residual" in data else float("nan"),
-                    residual_mirrored=float(data["residual_mirrored"]) if "residual_mirrored" in data else float("nan"),
-                    alternatives=json.loads(str(data["alternatives"])) if "alternatives" in data else [],
-                )
-        except OSError as err:
-            raise InputError(f"{path}: cannot read it ({err.strerror or err})") from None
-        except (KeyError, ValueError, EOFError, zipfile.BadZipFile) as err:
+            return cls(
+                rotation=data["R"],
+                h=data["h"],
+                energy=float(data["energy"]),
+                energy_dp=float(data["energy_dp"]),
+                energy_history=data["energy_history"],
+                r=data["r"],
+                t=data["t"],
+                mode=str(data["mode"]),
+                params=json.loads(str(data["params"])),
+                timings=json.loads(str(data["timings"])),
+                symmetry=int(data["symmetry"]) if "symmetry" in data else 0,
+                energy_stages=tuple(data["energy_stages"].tolist()) if "energy_stages" in data else (),
+                transform=data["transform"] if "transform" in data else np.eye(4),
+                first=_side(data, "first"),
+                second=_side(data, "second"),
+                info=json.loads(str(data["info"])) if "info" in data else {},
+                residual=float(data["residual"]) if "residual" in data else float("nan"),
+                residual_mirrored=float(data["residual_mirrored"]) if "residual_mirrored" in data else float("nan"),
+                alternatives=json.loads(str(data["alternatives"])) if "alternatives" in data else [],
+            )
+        except (KeyError, ValueError, TypeError) as err:
             raise InputError(f"{path}: not a meshreg result file ({type(err).__name__}: {err})") from None
 
 

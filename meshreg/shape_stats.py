@@ -8,6 +8,8 @@ import numpy as np
 from .grid import GridSurface
 from .srnf import cell_weights, shape_function
 
+ROUNDING_MODES = 10.0  # singular values of a PCA below this many roundings count as 0 (principal_modes)
+
 
 def karcher_update(aligned: np.ndarray, r: np.ndarray, t: np.ndarray) -> GridSurface:
     """The next template: the node-by-node mean of aligned shapes (K, M, N, 3), centred, at area 1."""
@@ -38,15 +40,19 @@ def principal_modes(shapes: np.ndarray, count: int):
     Returns mean (V, 3), unit modes (k, V, 3) (each signed so that its largest component is positive), variances
     (k,) (sample variances, K - 1 in the denominator), explained fractions of the total variance (k,; 0 when all
     shapes are equal) and scores (K, k), with k = min(count, K - 1). The total variance is ``variances.sum() /
-    explained.sum()`` (when not 0). Singular values at the level of rounding (numpy's ``matrix_rank`` tolerance on
-    the shapes: the largest side times machine epsilon times their norm) count as 0: equal shapes have no mode, not
-    one that explains 100% of a variance of 1e-30.
+    explained.sum()`` (when not 0). Singular values at the level of the coordinates' rounding count as 0 (below
+    ``ROUNDING_MODES`` eps max|x| (sqrt(K) + sqrt(3 V)), about the largest singular value of a K x 3V matrix of
+    independent errors of one rounding of the largest coordinate): equal shapes have no mode, not one that explains
+    100% of a variance of 1e-30; shapes far from the origin (terrain in map coordinates) keep modes of micrometres.
     """
     k_shapes = len(shapes)
     x = shapes.reshape(k_shapes, -1)
     mean = x.mean(axis=0)
     u, s, vt = np.linalg.svd(x - mean, full_matrices=False)
-    s = np.where(s > max(x.shape) * np.finfo(float).eps * np.linalg.norm(x), s, 0.0)
+    rounding = (
+        ROUNDING_MODES * np.finfo(float).eps * np.abs(x).max(initial=0.0) * (np.sqrt(x.shape[0]) + np.sqrt(x.shape[1]))
+    )
+    s = np.where(s > rounding, s, 0.0)
     k = min(count, max(k_shapes - 1, 0))
     signs = np.sign(vt[np.arange(k), np.argmax(np.abs(vt[:k]), axis=1)])
     modes, scores = vt[:k] * signs[:, None], u[:, :k] * s[:k] * signs

@@ -99,6 +99,10 @@ def test_principal_modes_and_canonical_correlations_known_answer():
     same = np.repeat(shapes[:1] * 1e3, 3, axis=0) + np.array([0.0, 1e-13, -1e-13])[:, None, None]
     _, _, variances, explained, _ = principal_modes(same, 2)
     assert np.all(variances == 0) and np.all(explained == 0)
+    # ... while terrain in map coordinates (4e6 m) keeps a mode of micrometres (a review's case)
+    far = 4e6 + np.repeat(shapes[:1], 12, axis=0) + 1e-5 * rng.normal(size=(12, 1, 1)) * m1.reshape(50, 3)
+    _, _, variances, explained, _ = principal_modes(far, 2)
+    assert variances[0] > 1e-12 and explained[0] > 0.99
 
 
 def test_keep_orientation_matches_front_to_front_only():

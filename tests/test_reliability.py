@@ -689,6 +689,9 @@ def test_truncated_and_huge_files_are_input_errors(tmp_path, grids):
         result.save(tmp_path)
     with pytest.raises(InputError, match="not a meshreg distance matrix"):
         DistanceMatrix.load(tmp_path / "cut.npz")
+    for load in (Registration.load, DistanceMatrix.load):  # held out 2026-12-02 (a review): TypeError tracebacks
+        with pytest.raises(InputError, match="a single array, not an .npz archive"):
+            load(grids / "a.npy")
 
 
 # 12. messages name the problem once and list what is supported

@@ -56,7 +56,6 @@ def test_view_command_rewrites_the_page(registered):
     (registered / "view.html").write_bytes(page)
 
 
-@pytest.mark.slow
 def test_view_of_damaged_outputs_says_what_is_wrong(registered, tmp_path):
     """Held out 2026-12-02 (a fuzz of the command line): a cut result.npz or an unreadable first.ply gave tracebacks,
     and a first.ply of another mesh a page of wrong matches."""
@@ -77,6 +76,7 @@ def test_view_of_damaged_outputs_says_what_is_wrong(registered, tmp_path):
         assert not (out / "view.html").exists()
 
 
+@pytest.mark.slow
 def test_page_draws_both_meshes_and_marks_the_match_in_a_real_browser(registered):
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
