@@ -86,7 +86,9 @@ def _partition(values, n: int, name: str) -> np.ndarray:
     """Validate a partition of length ``n`` and rescale it to [0, 1]."""
     if values is None:
         return np.linspace(0.0, 1.0, n)
-    p = coordinates(values, f"partition {name} values").ravel()
+    p = coordinates(values, f"partition {name} values")
+    if p.ndim != 1:
+        raise InputError(f"partition {name} must be one list of {n} values, got an array of shape {p.shape}")
     if p.shape != (n,):
         raise InputError(f"partition {name} has {p.size} values but the grid has {n} nodes along {name}")
     if np.any(np.diff(p) <= 0):

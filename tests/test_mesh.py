@@ -196,6 +196,12 @@ def test_unreadable_and_empty_files(tmp_path):
         load_mesh(tmp_path / "junk.ply")
     with pytest.raises(InputError, match="no such file"):
         load_mesh(tmp_path / "missing.obj")
+    # held out 2026-12-02 (a fuzz): a cut ASCII PLY was called "empty"
+    ascii_ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+    ascii_ply += "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+    (tmp_path / "cut.ply").write_text(ascii_ply)
+    with pytest.raises(InputError, match="no triangles read .* or a file cut short"):
+        load_mesh(tmp_path / "cut.ply")
 
 
 @pytest.mark.slow

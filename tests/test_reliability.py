@@ -655,6 +655,8 @@ def test_hand_built_grid_surfaces_are_checked():
         GridSurface(good.points, good.r[::-1].copy(), good.t)
     with pytest.raises(InputError, match="NaN"):
         GridSurface(np.where(good.points > 0.5, np.nan, good.points), good.r, good.t)
+    with pytest.raises(InputError, match=r"partition r must be one list of 5 values, got an array of shape \(5, 2\)"):
+        GridSurface.from_array(good.points, np.zeros((5, 2)), None)  # held out 2026-12-02: "has 10 values"
 
 
 def test_scale_and_position_do_not_change_e():

@@ -58,7 +58,7 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
         words = str(err).replace(str(path), "").strip(" :'\"")
         raise InputError(f"{path}: cannot read it as a {suffix} mesh ({type(err).__name__}: {words})") from None
     if len(vertices) == 0 or len(faces) == 0:
-        raise InputError(f"{path}: the mesh is empty (no triangles)")
+        raise InputError(f"{path}: no triangles read (an empty mesh, a point cloud, or a file cut short)")
     return vertices, faces
 
 
