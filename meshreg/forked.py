@@ -142,6 +142,9 @@ def _running_threads(process) -> int:
 # wrongly in about a third of the commands on an idle 2-core machine
 LOAD_READS = 3
 LOAD_GAP = 0.002
+# runnable tasks this much nicer than this process are background work (CFS weights: nice +10 gets 110 against
+# 1024, under a tenth of a core beside us; +19 gets 15)
+BACKGROUND_NICE = 10
 
 
 def _busy_tasks(loadavg: str) -> int:
@@ -151,25 +154,48 @@ def _busy_tasks(loadavg: str) -> int:
     return running - sum(map(_running_threads, list(_pausable)))
 
 
-def idle_core(loadavg: str = "/proc/loadavg") -> bool:
+def _background_tasks(proc: str) -> int:
+    """Runnable threads (state R in ``proc``/<pid>/task/<tid>/stat) of processes at least :data:`BACKGROUND_NICE`
+    nicer than this one: beside this process Linux's scheduler gives each a tenth of a core or less, so they do not
+    keep a forked child from a core. 0 where ``proc`` cannot be read."""
+    floor = os.getpriority(os.PRIO_PROCESS, 0) + BACKGROUND_NICE
+    count = 0
+    try:
+        pids = [name for name in os.listdir(proc) if name.isdigit()]
+    except OSError:
+        return 0
+    for pid in pids:
+        try:
+            for task in os.listdir(f"{proc}/{pid}/task"):
+                with open(f"{proc}/{pid}/task/{task}/stat") as file:
+                    fields = file.read().rsplit(")", 1)[1].split()  # the state, ..., the nice value (16th after it)
+                count += fields[0] == "R" and int(fields[16]) >= floor
+        except (OSError, IndexError, ValueError):
+            continue  # gone meanwhile, or not readable
+    return count
+
+
+def idle_core(loadavg: str = "/proc/loadavg", proc: str = "/proc") -> bool:
     """Whether a core is idle now: fewer runnable tasks than cores (the fourth field of ``loadavg``, which counts
     this process too; the fewest of LOAD_READS reads; True where it cannot be read), not counting this process's own
-    helpers that pause for a child (:func:`add_pausable`). When every core is busy (other jobs on a shared machine,
-    a pool of workers) a forked child only takes time from its caller, and its copy-on-write page faults cost more
-    CPU than the serial run: on the project's 2-core machine with one other busy process, two 100k-triangle meshes
-    took 1.76 s with the child against 1.62 s without (medians of 4, alternating)."""
+    helpers that pause for a child (:func:`add_pausable`) nor, when that count says busy, background work at least
+    :data:`BACKGROUND_NICE` nicer than this process (:func:`_background_tasks`). When every core is busy (other jobs
+    on a shared machine, a pool of workers) a forked child only takes time from its caller, and its copy-on-write
+    page faults cost more CPU than the serial run: on the project's 2-core machine with one other busy process, two
+    100k-triangle meshes took 1.76 s with the child against 1.62 s without (medians of 4, alternating)."""
     fewest = None
+    cores = os.cpu_count() or 1
     try:
         for read in range(LOAD_READS):
             if read:
                 time.sleep(LOAD_GAP)
             busy = _busy_tasks(loadavg)
             fewest = busy if fewest is None else min(fewest, busy)
-            if fewest < (os.cpu_count() or 1):
+            if fewest < cores:
                 return True
     except (OSError, ValueError, IndexError):
         return True
-    return False
+    return fewest - _background_tasks(proc) < cores
 
 
 def can_fork() -> bool:
