@@ -104,16 +104,7 @@ def register_meshes(
     meshes = [as_input(mesh, name) for mesh, name in zip((first, second), names, strict=True)]
     if not all(isinstance(m, Mesh) for m in meshes):
         raise InputError("register_meshes takes two meshes")
-    disks, maps, infos = [], [], {}
-    for name, mesh in zip(("first", "second"), meshes, strict=True):
-        try:
-            disk = prepare_disk(mesh.vertices, mesh.faces, cleanup=options.cleanup)
-            _check_corners(disk, options, name)
-            maps.append(HarmonicMap(disk, options.weights))
-        except InputError as err:
-            raise InputError(f"{mesh.name}: {err}") from None
-        disks.append(disk)
-        infos[name] = {"cleanup": disk.report}
+    disks, maps, infos = _prepared(meshes, options)
     n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
     if options.overlap == "off":
         return register_disks(disks, maps, n_input, infos, options, callback)
@@ -135,6 +126,23 @@ def register_meshes(
     spent = whole.result.timings
     timings = {**spent, "overlap": found.seconds, "total": spent.get("total", 0.0) + found.seconds}
     return replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
+
+
+def _prepared(meshes: list, options: Options) -> tuple[list[DiskMesh], list[HarmonicMap], dict]:
+    """Both meshes (:class:`meshreg.surfaces.Mesh`) cleaned into disks, their given corners checked, their maps to
+    the square set up (not yet solved), and the cleanup report per mesh ("first", "second"); an InputError names
+    the mesh."""
+    disks, maps, infos = [], [], {}
+    for name, mesh in zip(("first", "second"), meshes, strict=True):
+        try:
+            disk = prepare_disk(mesh.vertices, mesh.faces, cleanup=options.cleanup)
+            _check_corners(disk, options, name)
+            maps.append(HarmonicMap(disk, options.weights))
+        except InputError as err:
+            raise InputError(f"{mesh.name}: {err}") from None
+        disks.append(disk)
+        infos[name] = {"cleanup": disk.report}
+    return disks, maps, infos
 
 
 def _check_corners(disk: DiskMesh, options: Options, name: str) -> None:
