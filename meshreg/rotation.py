@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+SCALE_FIT = 0.5  # a rotation whose least-squares scale falls below this share of the size ratio does not fit
+
 
 def kabsch(h: np.ndarray) -> np.ndarray:
     """The rotation R (det +1) that maximizes trace(R H).
@@ -70,12 +72,18 @@ def angle_between(r1: np.ndarray, r2: np.ndarray) -> float | np.ndarray:
 
 def similarity(rotation: np.ndarray, source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """The similarity x -> s R x + b (4 x 4) with R = ``rotation`` fixed and s, b the least-squares fit of the
-    points ``source`` (..., 3) onto their counterparts ``target`` (..., 3)."""
+    points ``source`` (..., 3) onto their counterparts ``target`` (..., 3).
+
+    When R does not fit the points (a strongly bent pair, or a rotation the shapes leave free, as a flat sheet's
+    about its normal), the fitted s is negative, which would make the transform a reflection, or below
+    :data:`SCALE_FIT` times the ratio of the two point sets' RMS radii, which would shrink the first surface
+    towards a point (a flat sheet against a bumpy one: s = 0.014 for sheets of one size); R is then the best
+    rotation for the points themselves (Kabsch)."""
     p, q = np.asarray(source, dtype=float).reshape(-1, 3), np.asarray(target, dtype=float).reshape(-1, 3)
     pc, qc = p - p.mean(axis=0), q - q.mean(axis=0)
     rp = pc @ rotation.T
     scale = float(np.sum(rp * qc) / np.sum(rp * rp))
-    if not scale > 0:  # R does not fit the points (a bent pair): a negative s would make the transform a reflection
+    if not scale > SCALE_FIT * np.sqrt(np.sum(qc * qc) / np.sum(pc * pc)):
         rotation = kabsch(pc.T @ qc)
         rp = pc @ rotation.T
         scale = float(np.sum(rp * qc) / np.sum(rp * rp))
