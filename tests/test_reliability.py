@@ -757,6 +757,42 @@ def test_meshlab_failure_leaves_the_meshset_as_it_was():
         assert ms.mesh_number() == 3 and ms.current_mesh_id() == 0
 
 
+def _history(ms, tmp_path) -> str:
+    """The MeshSet's record of applied filters, as MeshLab writes it."""
+    ms.save_filter_script(str(tmp_path / "history.mlx"))
+    return (tmp_path / "history.mlx").read_text()
+
+
+def test_meshlab_keeps_the_filter_record_and_names_what_is_wrong(tmp_path):
+    """Held out 2026-12-02 (a fuzz of the adapters): prepare=True replaced the MeshSet's record of applied filters,
+    also on failure; a small disk was called a point cloud after preparing; numpy layer ids and wrong types gave
+    misleading errors."""
+    from meshreg.plugins import meshlab
+
+    v1, f1, _ = random_disk_mesh(bump(), 400, seed=1)
+    v2, f2, _ = random_disk_mesh(bump(), 500, seed=2)
+    sphere = trimesh.creation.icosphere(2)
+    ms = _meshset((v1, f1), (v2, f2), (sphere.vertices, sphere.faces), (v1[:4], np.array([[0, 1, 2], [0, 2, 3]])))
+    ms.apply_filter("compute_normal_per_vertex")
+    before = _history(ms, tmp_path)
+    info = meshlab.apply(ms, np.int64(0), np.int64(1), prepare=True, options=Options(resolution=21))
+    assert info["energy"] < 0.02 and _history(ms, tmp_path) == before
+    with pytest.raises(InputError, match="closed"):
+        meshlab.apply(ms, 0, 2, prepare=True, options=Options(resolution=21))
+    assert _history(ms, tmp_path) == before
+    with pytest.raises(InputError, match="layer 3: preparing removed every triangle .* give prepare=False"):
+        meshlab.apply(ms, 0, 3, prepare=True)
+    for call, words in (
+        (lambda: meshlab.apply(None), "takes a pymeshlab.MeshSet"),
+        (lambda: meshlab.apply(ms, prepare="no"), "prepare must be True or False"),
+        (lambda: meshlab.apply(ms, options={"resolution": 21}), "options must be a meshreg.Options"),
+    ):
+        with pytest.raises(TypeError, match=words):
+            call()
+    with pytest.raises(InputError, match="a layer id is an integer"):
+        meshlab.apply(ms, 0, 1.0)
+
+
 def test_open3d_wrong_types_are_type_errors():
     import open3d as o3d
     from meshreg.plugins import open3d as mo3d
@@ -769,6 +805,8 @@ def test_open3d_wrong_types_are_type_errors():
     empty = o3d.geometry.TriangleMesh(mesh.vertices, o3d.utility.Vector3iVector(np.zeros((0, 3), np.int32)))
     with pytest.raises(InputError, match="source: the mesh has no triangles"):
         mo3d.register(empty, mesh)
+    with pytest.raises(InputError, match="vertex ids are integers"):  # held out 2026-12-02: int() ValueError
+        mo3d.parametrize(mesh, corners="abcd")
 
 
 def test_run_error_is_exit_status_1(capsys, monkeypatch):

@@ -145,8 +145,12 @@ class DiskMesh:
         return np.where(known, self.vertex_map[np.minimum(ids, len(self.vertex_map) - 1)], -1)
 
     def input_ids(self, ids) -> np.ndarray:
-        """Indices in this disk of vertices given by their ids in the input mesh (InputError if dropped)."""
-        given = ids = np.asarray(ids, dtype=np.int64)
+        """Indices in this disk of vertices given by their ids in the input mesh (InputError if dropped, or if the ids
+        are not integers)."""
+        given = np.asarray(ids)
+        if given.dtype.kind not in "iu":
+            raise InputError(f"vertex ids are integers, got {ids!r}")
+        given = ids = given.astype(np.int64)
         if self.aliases is not None:
             inside = (ids >= 0) & (ids < len(self.aliases))
             ids = np.where(inside, self.aliases[np.clip(ids, 0, len(self.aliases) - 1)], -1)

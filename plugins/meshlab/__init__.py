@@ -4,8 +4,8 @@ pymeshlab has no Python plugin API, so this is a function over a MeshSet: it rea
 prepares copies of them (the MeshLab filter script shipped here, ``prepare_scan.mlx``: remove small pieces, repair
 non-manifold edges and vertices; then MeshLab's Close Holes up to :data:`MAX_HOLE_EDGES` edges but always fewer
 than the longest boundary has, so that the outer boundary of a disk stays open), registers them and adds the
-results as new layers. The user's layers are never modified; a failure leaves the MeshSet as it was (no extra
-layer, the same current mesh).
+results as new layers. The user's layers are never modified, nor the MeshSet's record of applied filters (which
+preparing would add to); a failure leaves the MeshSet as it was (no extra layer, the same current mesh).
 
 Examples
 --------
@@ -19,9 +19,11 @@ Examples
 
 from __future__ import annotations
 
+import numbers
 import os
 import sys
-from contextlib import contextmanager
+import tempfile
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -76,10 +78,33 @@ def _prepare_current(ms) -> None:
     ms.apply_filter("meshing_remove_unreferenced_vertices")
 
 
+@contextmanager
+def _history_kept(ms):
+    """The MeshSet's record of applied filters (what ``save_filter_script`` writes) as it was before the block, also
+    when the block fails: preparing applies filters, which MeshLab records."""
+    with tempfile.TemporaryDirectory() as folder:
+        saved = Path(folder) / "history.mlx"
+        with _quiet():
+            ms.save_filter_script(str(saved))
+        try:
+            yield
+        finally:
+            with _quiet():
+                ms.clear_filter_script()
+                ms.load_filter_script(str(saved))
+
+
+def _layer_id(mesh_id) -> int:
+    """A layer id as an int (numpy's integers too); InputError for anything else."""
+    if isinstance(mesh_id, bool) or not isinstance(mesh_id, numbers.Integral):
+        raise InputError(f"a layer id is an integer, got {mesh_id!r}")
+    return int(mesh_id)
+
+
 def _layer(ms, mesh_id: int, prepare: bool) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and faces of a layer; with ``prepare``, of a prepared copy (the copy is then removed, also when
     preparing it fails)."""
-    if not isinstance(mesh_id, int) or isinstance(mesh_id, bool) or not ms.mesh_id_exists(mesh_id):
+    if not ms.mesh_id_exists(mesh_id):
         raise InputError(f"the MeshSet has no mesh with id {mesh_id!r}")
     ms.set_current_mesh(mesh_id)
     if ms.current_mesh().face_number() == 0:
@@ -92,6 +117,11 @@ def _layer(ms, mesh_id: int, prepare: bool) -> tuple[np.ndarray, np.ndarray]:
     try:
         _prepare_current(ms)
         mesh = ms.current_mesh()
+        if mesh.face_number() == 0:
+            raise InputError(
+                f"layer {mesh_id}: preparing removed every triangle (prepare_scan.mlx drops pieces of fewer than 100 "
+                "triangles): give prepare=False for a small mesh"
+            )
         return np.array(mesh.vertex_matrix(), dtype=float), np.array(mesh.face_matrix(), dtype=np.int64)
     except pymeshlab.PyMeshLabException as err:
         raise InputError(f"layer {mesh_id}: MeshLab could not prepare it ({err})") from None
@@ -134,11 +164,19 @@ def apply(ms, first_id: int = 0, second_id: int = 1, prepare: bool = False, opti
     ------
     meshreg.InputError
         A missing layer, a layer without triangles, a mesh that cannot be made a disk, bad options. The MeshSet is
-        then as it was: no layer added, the same current mesh.
+        then as it was: no layer added, the same current mesh, the same record of applied filters.
+    TypeError
+        ``ms`` not a MeshSet, ``prepare`` not a bool, ``options`` not a :class:`meshreg.Options`.
     """
+    if not isinstance(ms, pymeshlab.MeshSet):
+        raise TypeError(f"apply takes a pymeshlab.MeshSet, got {type(ms).__name__}")
+    if not isinstance(prepare, bool):
+        raise TypeError(f"prepare must be True or False, got {prepare!r}")
+    first_id, second_id = _layer_id(first_id), _layer_id(second_id)
     current = ms.current_mesh_id() if ms.mesh_number() else None
     try:
-        first, second = _layer(ms, first_id, prepare), _layer(ms, second_id, prepare)
+        with _history_kept(ms) if prepare else nullcontext():
+            first, second = _layer(ms, first_id, prepare), _layer(ms, second_id, prepare)
         names = (f"layer {first_id}", f"layer {second_id}")
         mr, c1, c2, (rv, rf, rc) = register_arrays(first, second, options, names=names)
     except BaseException:
