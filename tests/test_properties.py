@@ -162,3 +162,34 @@ def test_minimum_degree_factorization_solves_any_pattern(size, density, symmetri
     assert np.array_equal(np.sort(order), np.arange(size))
     rhs = rng.standard_normal((size, 2))
     assert np.allclose(factorize(matrix).solve(rhs), spla.spsolve(matrix, rhs), rtol=1e-9, atol=1e-12)
+
+
+CUT_HEADERS = st.builds(
+    lambda key, cut: (b'{"key": "' + key.encode() + b'"}')[:cut],
+    st.text("0123456789abcdef", max_size=64),
+    st.integers(0, 80),
+)
+
+
+@seed(SEED)
+@SETTINGS
+@given(content=st.one_of(st.binary(max_size=80), st.text(max_size=80).map(str.encode), CUT_HEADERS))
+def test_a_file_given_as_checkpoint_is_begun_afresh_only_when_meshreg_wrote_it(content, tmp_path_factory):
+    """Whatever a file without a line ending holds, it is either begun afresh, when it is empty or the start of a
+    checkpoint's header that a kill cut short, or refused with an InputError and left as it was (a fuzz found a
+    user's one-line file truncated and overwritten)."""
+    from meshreg.checkpoint import Checkpoint
+
+    content = content.replace(b"\n", b" ")
+    path = tmp_path_factory.mktemp("checkpoint") / "given.txt"
+    path.write_bytes(content)
+    opening = b'{"key": "'
+    try:
+        Checkpoint(path, key="0123abcd").close()
+    except InputError:
+        assert path.read_bytes() == content
+    else:
+        assert content[: len(opening)] == opening[: len(content)] and set(content[len(opening) :]) <= set(
+            b'0123456789abcdef"}'
+        )
+        assert path.read_bytes() == b'{"key": "0123abcd"}\n'
