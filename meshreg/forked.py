@@ -123,15 +123,22 @@ def _pause(step: int) -> None:
 os.register_at_fork(after_in_child=_forget_pausable)
 
 
+def _task_stats(pid, proc: str = "/proc") -> Iterator[list[str]]:
+    """The fields of ``proc``/<pid>/task/<tid>/stat after the command name, one list per thread of process ``pid``:
+    [0] the state (R: runnable), [16] the nice value. OSError when the process is gone."""
+    for task in os.listdir(f"{proc}/{pid}/task"):
+        with open(f"{proc}/{pid}/task/{task}/stat") as file:
+            yield file.read().rsplit(")", 1)[1].split()
+
+
 def _running_threads(process) -> int:
     """How many threads of a live helper process are runnable now (state R in /proc/<pid>/task/*/stat)."""
     count = 0
     try:
         if not process.is_alive():
             return 0
-        for task in os.listdir(f"/proc/{process.pid}/task"):
-            with open(f"/proc/{process.pid}/task/{task}/stat") as file:
-                count += file.read().rsplit(")", 1)[1].split()[0] == "R"
+        for fields in _task_stats(process.pid):
+            count += fields[0] == "R"
     except (OSError, IndexError, ValueError, AssertionError):
         pass
     return count
@@ -166,9 +173,7 @@ def _background_tasks(proc: str) -> int:
         return 0
     for pid in pids:
         try:
-            for task in os.listdir(f"{proc}/{pid}/task"):
-                with open(f"{proc}/{pid}/task/{task}/stat") as file:
-                    fields = file.read().rsplit(")", 1)[1].split()  # the state, ..., the nice value (16th after it)
+            for fields in _task_stats(pid, proc):
                 count += fields[0] == "R" and int(fields[16]) >= floor
         except (OSError, IndexError, ValueError):
             continue  # gone meanwhile, or not readable
