@@ -24,7 +24,5 @@ def register_arrays(
 ) -> tuple[MeshRegistration, np.ndarray, np.ndarray, tuple]:
     """Register (vertices, faces) pairs; returns the mesh registration, colours (n1, 3) and (n2, 3) in [0, 1] on
     the input vertices (grey where cleanup dropped a vertex) and the registered mesh (vertices, faces, colours)."""
-    if options is not None and not isinstance(options, Options):
-        raise TypeError(f"options must be a meshreg.Options, e.g. Options(resolution=61), got {type(options).__name__}")
     mr = register_meshes(first, second, options, names=names)
     return mr, *colored_outputs(mr, len(first[0]), len(second[0]))

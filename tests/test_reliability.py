@@ -27,6 +27,7 @@ from meshreg.batch import CHECKPOINT_SUFFIX, DistanceMatrix, distance_matrix
 from meshreg.cli import main
 from meshreg.errors import InputError, RunError
 from meshreg.grid import GridSurface, read_grid
+from meshreg.mesh.correspond import register_meshes
 from meshreg.mesh.samples import random_disk_mesh
 from meshreg.mesh.topology import prepare_disk
 from meshreg.options import Options
@@ -555,6 +556,10 @@ def test_other_api_parameters_are_checked():
     assert Options(smoothing=0.2).smoothing == (0.2,)  # one number for one level (held out 2026-12-02: TypeError)
     with pytest.raises(InputError, match="callback must be a function"):
         meshreg.register(sample(sine(2), 11, 11), sample(sine(2), 11, 11), callback=5)
+    v, f, _ = random_disk_mesh(bump(), 200, seed=0)
+    for options in ({}, {"resolution": 21}):  # {} passed for the defaults before the check
+        with pytest.raises(TypeError, match="options must be a meshreg.Options"):
+            register_meshes((v, f), (v, f), options)
     with pytest.raises(InputError, match="jobs"):
         distance_matrix([sample(sine(2), 11, 11)] * 2, jobs=0)
     with pytest.raises(InputError, match="grid must be an integer from 3"):

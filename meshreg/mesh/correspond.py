@@ -98,7 +98,9 @@ def register_meshes(
     """
     from ..surfaces import Mesh, as_input
 
-    options = options or Options()
+    if options is not None and not isinstance(options, Options):  # a dict, say: {} would pass for the defaults
+        raise TypeError(f"options must be a meshreg.Options, e.g. Options(resolution=61), got {type(options).__name__}")
+    options = Options() if options is None else options
     side = (options.resolution, options.resolution)
     options.check_grids(side, side)
     meshes = [as_input(mesh, name) for mesh, name in zip((first, second), names, strict=True)]
