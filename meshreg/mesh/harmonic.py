@@ -129,51 +129,60 @@ def _boundary_uv(disk: DiskMesh, corner_pos: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _weight_triplets(v: np.ndarray, f: np.ndarray, cotangent: bool):
-    """Rows, columns and values (6m,) of the edge weights: mean-value weights tan(angle at i / 2) / |e_ij| of the
-    edges (i, j) and (i, l) at each corner i, or half the cotangent of the angle at i on the opposite edge (j, l)
-    both ways; duplicates add up."""
-    m = f.shape[0]
-    rows, cols, vals = np.empty(6 * m, np.int64), np.empty(6 * m, np.int64), np.empty(6 * m)
-    for t in range(m):
-        for k in range(3):
-            i, j, l = f[t, k], f[t, (k + 1) % 3], f[t, (k + 2) % 3]
-            x1, y1, z1 = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
-            x2, y2, z2 = v[l, 0] - v[i, 0], v[l, 1] - v[i, 1], v[l, 2] - v[i, 2]
-            dot = x1 * x2 + y1 * y2 + z1 * z2
-            at = 6 * t + 2 * k
-            if cotangent:
-                cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
-                half = 0.5 * dot / max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
-                rows[at], cols[at], vals[at] = j, l, half
-                rows[at + 1], cols[at + 1], vals[at + 1] = l, j, half
-            else:
-                nij, nil = np.sqrt(x1 * x1 + y1 * y1 + z1 * z1), np.sqrt(x2 * x2 + y2 * y2 + z2 * z2)
-                tan = np.tan(np.arccos(min(max(dot / (nij * nil), -1.0), 1.0)) / 2)
-                rows[at], cols[at], vals[at] = i, j, tan / nij
-                rows[at + 1], cols[at + 1], vals[at + 1] = i, l, tan / nil
-    return rows, cols, vals
+def _corner_weights(v, f, t, k, cotangent):
+    """The two weights of corner k of face t: mean-value tan(angle at i / 2) / |e_ij| and / |e_il| on the edges
+    (i, j) and (i, l), or half the cotangent of the angle at i on the opposite edge (j, l), both ways. Returns
+    (row, column, value) of each: i, j, l being the corner and the next two of the face."""
+    i, j, l = f[t, k], f[t, (k + 1) % 3], f[t, (k + 2) % 3]
+    x1, y1, z1 = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
+    x2, y2, z2 = v[l, 0] - v[i, 0], v[l, 1] - v[i, 1], v[l, 2] - v[i, 2]
+    dot = x1 * x2 + y1 * y2 + z1 * z2
+    if cotangent:
+        cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+        half = 0.5 * dot / max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+        return j, l, half, l, j, half
+    nij, nil = np.sqrt(x1 * x1 + y1 * y1 + z1 * z1), np.sqrt(x2 * x2 + y2 * y2 + z2 * z2)
+    tan = np.tan(np.arccos(min(max(dot / (nij * nil), -1.0), 1.0)) / 2)
+    return i, j, tan / nij, i, l, tan / nil
 
 
 @numba.njit(cache=True, nogil=True)
-def _assemble(rows, cols, vals, place, ni):
-    """CSR arrays (indptr, indices, data) of the interior block and of the coupling to the loop of the Laplacian
-    diag(W 1) - W, from W's triplets (duplicates add up) and each vertex's ``place``: its row and column among the
-    ``ni`` interior vertices, or ni + its loop position. O(n + nnz): each triplet's column and value are copied once
-    into its row's bucket (in triplet order), then each bucket is read in sequence and merged by a marker."""
+def _row_buckets(v, f, place, ni, cotangent):
+    """The edge weights (:func:`_corner_weights`) of the ``ni`` interior rows, each row's in a bucket: start (ni +
+    1,), and the column (its ``place``) and value of each weight, in the order of the faces, their corners and the
+    two weights of a corner (rows of the boundary loop are not kept). O(m): the faces are read twice, to count and
+    to fill, with no list of all the weights in between."""
+    m = f.shape[0]
     start = np.zeros(ni + 1, np.int64)
-    for k in range(len(rows)):
-        if place[rows[k]] < ni:
-            start[place[rows[k]] + 1] += 1
+    for t in range(m):
+        for k in range(3):
+            if cotangent:
+                for r in (place[f[t, (k + 1) % 3]], place[f[t, (k + 2) % 3]]):
+                    if r < ni:
+                        start[r + 1] += 1
+            elif place[f[t, k]] < ni:
+                start[place[f[t, k]] + 1] += 2
     for r in range(ni):
         start[r + 1] += start[r]
     bucket_col, bucket_val, fill = np.empty(start[ni], np.int64), np.empty(start[ni]), start[:-1].copy()
-    for k in range(len(rows)):
-        r = place[rows[k]]
-        if r < ni:
-            bucket_col[fill[r]], bucket_val[fill[r]] = place[cols[k]], vals[k]
-            fill[r] += 1
-    mark = np.full(len(place), -1, np.int64)
+    for t in range(m):
+        for k in range(3):
+            r1, c1, w1, r2, c2, w2 = _corner_weights(v, f, t, k, cotangent)
+            for row, col, w in ((r1, c1, w1), (r2, c2, w2)):
+                r = place[row]
+                if r < ni:
+                    bucket_col[fill[r]], bucket_val[fill[r]] = place[col], w
+                    fill[r] += 1
+    return start, bucket_col, bucket_val
+
+
+@numba.njit(cache=True, nogil=True)
+def _assemble(start, bucket_col, bucket_val, n, ni):
+    """CSR arrays (indptr, indices, data) of the interior block and of the coupling to the loop of the Laplacian
+    diag(W 1) - W, from each interior row's bucket of weights (:func:`_row_buckets`: columns are places, the
+    ``ni`` interior vertices first, then the loop; duplicates add up; ``n`` vertices in all). O(n + nnz): each
+    bucket is read in sequence and merged by a marker."""
+    mark = np.full(n, -1, np.int64)
     ptr = (np.zeros(ni + 1, np.int64), np.zeros(ni + 1, np.int64))
     ind = (np.empty(start[ni] + ni, np.int64), np.empty(start[ni], np.int64))
     val = (np.empty(start[ni] + ni), np.empty(start[ni]))
@@ -202,11 +211,15 @@ def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tupl
     """The rows of the mesh Laplacian L = diag(W 1) - W at the interior vertices, split into the interior block
     (i, i), CSC, and the coupling to the boundary loop (i, b), CSR, in the order of ``interior`` and of the loop."""
     v, f, loop = disk.vertices, disk.faces, disk.boundary
-    rows, cols, vals = _weight_triplets(
-        np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(f, dtype=np.int64), weights == "cotangent"
-    )
     ni = len(interior)
-    bptr, bind, bval, cptr, cind, cval = _assemble(rows, cols, vals, _places(disk, interior), ni)
+    buckets = _row_buckets(
+        np.ascontiguousarray(v, dtype=float),
+        np.ascontiguousarray(f, dtype=np.int64),
+        _places(disk, interior),
+        ni,
+        weights == "cotangent",
+    )
+    bptr, bind, bval, cptr, cind, cval = _assemble(*buckets, len(v), ni)
     block = sp.csr_matrix((bval, bind, bptr), shape=(ni, ni)).tocsc()
     return block, sp.csr_matrix((cval, cind, cptr), shape=(ni, len(loop)))
 
