@@ -99,10 +99,6 @@ UNTESTED = "the warp at the scale of the areas' ratio failed: a partial overlap 
 # pair of the benchmark or of 40 random crops of relief sheets (50-81%, bent 0-90 degrees) reaches this comparison
 COVERS = "the warp at the scale of the areas' ratio makes more of the less-covered mesh coincide than a partial overlap"
 QUICK_SAMPLE = 2000  # points per mesh (spread evenly over its area) that judge the overlap in same_region
-# a partial rigid overlap is not trusted when the second's mirror image covers the same region as the first (the
-# quick check of same_region at FULL_TOLERANCE["rigid"]): a rolled sheet's cylinder is its own mirror image, so a
-# mirrored copy of a sheet rolled 270 degrees coincided with it exactly over 66% of both (held out 2026-12-02)
-MIRRORED = "the second's mirror image covers the same region as the first: mirror images, registered whole"
 
 
 @dataclass(frozen=True)
@@ -523,21 +519,12 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
             spread["probe"] = probed_rms(s1.vertices[inside], system, posed, PROBE * edge)
             # unpinned only when the probe shows it: NaN (a narrow overlap) leaves the verdict to the slide
             regime, reason = ("whole", UNPINNED) if spread["probe"] <= TIGHT * edge else ("rigid", "")
-            if regime == "rigid" and _mirror_covers(s1, s2):
-                regime, reason = "whole", MIRRORED
     elif _verdict("rigid", one, two, coincide, alignment.scale, slid, edges)[0] == "full":
         regime, reason = "full", ""  # the pose already shows each mesh covering the other: no warp needed
     else:
         regime, reason = "deformed", ""
     seconds = time.perf_counter() - start
     return Overlap(regime, one, two, alignment, posed.vertices, edges, spread, coincide, slid, seconds, reason, s1, s2)
-
-
-def _mirror_covers(first: Surface, second: Surface) -> bool:
-    """Whether the mirror image of ``second`` (x -> -x) covers the same region as ``first``
-    (:func:`same_region` at the rigid tolerance)."""
-    mirror = Surface(second.vertices * np.array([-1.0, 1.0, 1.0]), np.ascontiguousarray(second.faces[:, ::-1]))
-    return same_region(first, mirror, FULL_TOLERANCE["rigid"]) is not None
 
 
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
