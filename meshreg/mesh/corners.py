@@ -31,7 +31,7 @@ from .topology import DiskMesh, prepare_disk
 CORNER_SEARCH_GRID = 21  # coarse grid on which :func:`best_placement` ranks the trial placements (by coarse DP)
 PLACEMENT_HALVINGS = 4  # halving steps around the best trial: the pair's corner search, a round boundary's own start
 OWN_TRIALS = 8  # trial starts of a round boundary's own corner placement, over a quarter of it (:func:`own_start`)
-SQUEEZE_GAIN = 0.5  # ... which moves off choose_corners' start only to a map squeezing the surface at most this much
+SQUEEZE_GAIN = 0.5  # ... which moves off choose_corners' start only to a map squeezing the surface less than this much
 SWAP = SQUARE_SYMMETRIES.index((True, False, False))  # (u, v) -> (v, u): corners given each way round
 
 
@@ -47,8 +47,8 @@ def placement_starts(disk: DiskMesh, trials: int, span: float = 0.25, start: flo
 
 def own_start(hmap: HarmonicMap) -> float:
     """Arc-length fraction in [0, 1) where a round boundary's own corner placement starts: where
-    :func:`~meshreg.mesh.harmonic.choose_corners` would start, unless another start squeezes the surface at most
-    SQUEEZE_GAIN as much (:func:`~meshreg.mesh.harmonic.compression`); the best of OWN_TRIALS starts spread over a
+    :func:`~meshreg.mesh.harmonic.choose_corners` would start, unless another start squeezes the surface less
+    than SQUEEZE_GAIN as much (:func:`~meshreg.mesh.harmonic.compression`); the best of OWN_TRIALS starts spread over a
     quarter of the boundary from there, then PLACEMENT_HALVINGS halving steps around the best.
 
     A placement that puts both ends of a boundary chord on one side of the square collapses the surface beyond the

@@ -150,8 +150,8 @@ def _corner_weights(v, f, t, k, cotangent):
 def _row_buckets(v, f, place, ni, cotangent):
     """The edge weights (:func:`_corner_weights`) of the ``ni`` interior rows, each row's in a bucket: start (ni +
     1,), and the column (its ``place``) and value of each weight, in the order of the faces, their corners and the
-    two weights of a corner (rows of the boundary loop are not kept). O(m): the faces are read twice, to count and
-    to fill, with no list of all the weights in between."""
+    two weights of a corner (rows of the boundary loop are neither computed nor kept). O(m): the faces are read twice,
+    to count and to fill, with no list of all the weights in between."""
     m = f.shape[0]
     start = np.zeros(ni + 1, np.int64)
     for t in range(m):
@@ -167,6 +167,10 @@ def _row_buckets(v, f, place, ni, cotangent):
     bucket_col, bucket_val, fill = np.empty(start[ni], np.int64), np.empty(start[ni]), start[:-1].copy()
     for t in range(m):
         for k in range(3):
+            if cotangent and place[f[t, (k + 1) % 3]] >= ni and place[f[t, (k + 2) % 3]] >= ni:
+                continue  # both weights in rows of the boundary loop
+            if not cotangent and place[f[t, k]] >= ni:
+                continue
             r1, c1, w1, r2, c2, w2 = _corner_weights(v, f, t, k, cotangent)
             for row, col, w in ((r1, c1, w1), (r2, c2, w2)):
                 r = place[row]
