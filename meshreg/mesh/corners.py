@@ -105,8 +105,8 @@ def best_placement(first: GridSurface, placements: list[GridSurface], keep_orien
 
 def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options):
     """Corner loop positions (4,) of both meshes of a pair: given ids (``options.corners1/2``, the first of each
-    at (0, 0)), four clear turns, or, when a boundary is round, the first's corners (its clear turns, else its
-    own placement) and a search of the second's (:func:`search_corners`).
+    at (0, 0)), four clear turns on both, or else the first's own placement (:func:`placement_corners`, even where
+    the first alone has four clear turns) and a search of the second's (:func:`search_corners`).
 
     Returns
     -------
@@ -132,8 +132,9 @@ def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Op
     search = options.corner_search > 0 and given == (None, None) and not all(has_sharp_corners(d) for d in disks)
     if not search:
         return pos, None, symmetry
-    if not has_sharp_corners(disks[0]):
-        pos[0] = placement_corners(maps[0], 1)[0]
+    # four clear turns on one mesh only are no corners of the surface (dents of a jagged rim, bunched in a tenth of it):
+    # both meshes are placed at quarter arc lengths, which the search can match
+    pos[0] = placement_corners(maps[0], 1)[0]
     pos[1], tried = search_corners(maps[0], pos[0], maps[1], options)
     return pos, tried, symmetry
 
