@@ -26,7 +26,7 @@ from .harmonic import (
     quarter_corners,
 )
 from .resample import resample_grid
-from .topology import DiskMesh, prepare_disk
+from .topology import DiskMesh, prepare_disk, triangle_areas
 
 CORNER_SEARCH_GRID = 21  # coarse grid on which :func:`best_placement` ranks the trial placements (by coarse DP)
 PLACEMENT_HALVINGS = 4  # halving steps around the best trial: the pair's corner search, a round boundary's own start
@@ -57,10 +57,11 @@ def own_start(hmap: HarmonicMap) -> float:
     without such chords (a cap) keeps choose_corners' start, which two meshes of one surface share: where the
     relief cannot tell placements apart, the pair's corner search matches them only there."""
     disk = hmap.disk
+    areas = triangle_areas(disk.vertices, disk.faces)
 
     def squeeze(start):
         try:
-            return compression(disk, hmap(quarter_corners(disk, start % 1.0))[0])
+            return compression(disk, hmap(quarter_corners(disk, start % 1.0))[0], areas)
         except InputError:  # fewer than 4 distinct quarter points from this start
             return np.inf
 

@@ -18,6 +18,7 @@ from ..errors import InputError
 from .boundary import sharp_corners
 from .frontal import Analysis, MultifrontalLU, analyse
 from .graph import side_lengths, turn_counts
+from .locate import uv_triangle
 from .ordering import spatial_order
 from .topology import DiskMesh, loop_segments, triangle_areas
 
@@ -302,30 +303,23 @@ SQUEEZE_FLOOR = 1e-8
 
 
 @numba.njit(cache=True)
-def _compression(v, uv, f, floor):
+def _compression(areas, uv, f, floor):
     m = f.shape[0]
-    surface, square = np.empty(m), np.empty(m)
+    square = np.empty(m)
     for t in range(m):
-        a, b, c = f[t, 0], f[t, 1], f[t, 2]
-        x1, y1, z1 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-        x2, y2, z2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-        cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
-        surface[t] = np.sqrt(cx * cx + cy * cy + cz * cz)
-        du1, dv1 = uv[b, 0] - uv[a, 0], uv[b, 1] - uv[a, 1]
-        du2, dv2 = uv[c, 0] - uv[a, 0], uv[c, 1] - uv[a, 1]
-        square[t] = abs(du1 * dv2 - dv1 * du2)
-    total, covered = surface.sum(), square.sum()
+        square[t] = abs(uv_triangle(uv, f, t)[6])
+    total, covered = areas.sum(), square.sum()
     if total <= 0.0 or covered <= 0.0:
         return np.inf
     out = 0.0
     for t in range(m):
-        if surface[t] > 0.0:
-            share = max(square[t] * total / (covered * surface[t]), floor)
-            out += surface[t] * min(np.log(share), 0.0) ** 2
+        if areas[t] > 0.0:
+            share = max(square[t] * total / (covered * areas[t]), floor)
+            out += areas[t] * min(np.log(share), 0.0) ** 2
     return out / total
 
 
-def compression(disk: DiskMesh, uv: np.ndarray) -> float:
+def compression(disk: DiskMesh, uv: np.ndarray, areas: np.ndarray | None = None) -> float:
     """How much a map of the disk to the square squeezes the surface: the area-weighted mean over the triangles of
     min(0, log s)^2, s a triangle's share of the square's area over its share of the surface's (at least
     SQUEEZE_FLOOR). 0 when no triangle's share shrinks; corners placed so that a boundary chord's two ends share a
@@ -336,15 +330,14 @@ def compression(disk: DiskMesh, uv: np.ndarray) -> float:
     disk : DiskMesh
     uv : ndarray (n, 2)
         The map, one point of the square per vertex of ``disk``.
+    areas : ndarray (m,), optional
+        The triangles' areas (:func:`~meshreg.mesh.graph.triangle_areas`), when the caller compares many maps of one
+        disk; computed here otherwise.
     """
-    return float(
-        _compression(
-            np.ascontiguousarray(disk.vertices, dtype=float),
-            np.ascontiguousarray(uv, dtype=float),
-            np.ascontiguousarray(disk.faces, dtype=np.int64),
-            SQUEEZE_FLOOR,
-        )
-    )
+    if areas is None:
+        areas = triangle_areas(disk.vertices, disk.faces)
+    faces = np.ascontiguousarray(disk.faces, dtype=np.int64)
+    return float(_compression(areas, np.ascontiguousarray(uv, dtype=float), faces, SQUEEZE_FLOOR))
 
 
 def edge_length(faces: np.ndarray, uv: np.ndarray) -> float:
