@@ -214,7 +214,7 @@ def morph_frames(first, second=None, *, mode: int | None = None, frames: int = 2
 
 def _morph_ends(first: Path, second: Path, options: Options):
     """The two ends of a straight morph, in correspondence: vertices (V, 3) x 2 and faces."""
-    from .batch import prepare_surface, registered_pair
+    from .batch import pair_grids, prepare_collection, registered_pair
     from .mesh.export import grid_faces
     from .mesh.topology import MESH_SUFFIXES, load_mesh
     from .rotation import kabsch
@@ -224,12 +224,13 @@ def _morph_ends(first: Path, second: Path, options: Options):
         if len(v1) == len(v2) and np.array_equal(f1, f2):
             a, b = v1 - v1.mean(axis=0), v2 - v2.mean(axis=0)
             return v1, b @ kabsch(b.T @ a).T + v1.mean(axis=0), f1
-    ends = [prepare_surface(p, str(p), options) for p in (first, second)]
+    ends = prepare_collection([first, second], [str(first), str(second)], options)
     for p in ends:
         if p.error:
             raise InputError(f"{p.name}: {p.error}")
-    g1, candidates = ends[0].grid, [ends[1].grid, *ends[1].placements]
-    result, record = registered_pair(g1, candidates if ends[1].placements else ends[1].grid, options)
+    g1, offered = pair_grids(*ends)
+    result, record = registered_pair(g1, offered, options)
+    candidates = offered if isinstance(offered, list) else [offered]
     a = g1.scaled().points.reshape(-1, 3)
     b = (candidates[record.get("placement", 0)].scaled().at(result.h) @ result.rotation).reshape(-1, 3)
     return a, b - b.mean(axis=0) + a.mean(axis=0), grid_faces(*g1.shape)

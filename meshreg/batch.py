@@ -35,24 +35,42 @@ from .pipeline import register_with
 from .result import Registration
 from .workers import run_tasks
 
-__all__ = ["CHECKPOINT_SUFFIX", "DistanceMatrix", "Prepared", "distance_matrix", "prepare_surface", "run_checkpointed"]
+__all__ = [
+    "CHECKPOINT_SUFFIX",
+    "DistanceMatrix",
+    "Prepared",
+    "distance_matrix",
+    "pair_grids",
+    "prepare_collection",
+    "prepare_surface",
+    "run_checkpointed",
+]
 
 
 @dataclass
 class Prepared:
-    """A surface ready to register: its grid, or why it could not be prepared."""
+    """A surface ready to register: its grid, or why it could not be prepared.
+
+    ``kind`` is "grid" (a grid, or a mesh whose corners were not searched), "turned" (a mesh with four clear turns:
+    ``grid`` has its corners there) or "round" (a mesh without: ``grid`` is its own corner placement at quarter arc
+    lengths, ``placements`` the others tried). A turned mesh in a collection with round ones also has ``arcs``: its
+    grids at quarter arc lengths (its own placement first), as a pair of meshes places both meshes when only one has
+    four clear turns (:func:`meshreg.mesh.corners.corner_positions`)."""
 
     name: str
     grid: GridSurface | None
     error: str | None = None
     placements: list = field(default_factory=list)  # a round-boundary mesh: its grids for other corner placements
+    kind: str = "grid"
+    arcs: list = field(default_factory=list)
 
 
-def prepare_surface(item, name: str | None = None, options: Options | None = None) -> Prepared:
+def prepare_surface(item, name: str | None = None, options: Options | None = None, *, arcs: bool = False) -> Prepared:
     """Read and prepare one surface: a GridSurface, an (M, N, 3) array, a (vertices, faces) pair, or a path to a
     grid file or a mesh (see :func:`meshreg.mesh.corners.mesh_grids`: a mesh without four clear corners
-    keeps its grids for ``options.corner_search`` corner placements). Errors (unreadable file, not a disk, out of
-    memory, ...) are returned in ``error``, not raised: the item is skipped and the rest goes on."""
+    keeps its grids for ``options.corner_search`` corner placements; with ``arcs``, a mesh with four clear turns
+    keeps its grids at quarter arc lengths too). Errors (unreadable file, not a disk, out of memory, ...) are
+    returned in ``error``, not raised: the item is skipped and the rest goes on."""
     if isinstance(item, Prepared):
         return item
     name = name or (str(item) if isinstance(item, (str, Path)) else "surface")
@@ -69,8 +87,12 @@ def prepare_surface(item, name: str | None = None, options: Options | None = Non
             from .mesh.corners import mesh_grids
 
             options.check_grids((options.resolution, options.resolution))
-            grids, _ = mesh_grids(*item, options)
-            return Prepared(name, grids[0], placements=grids[1:])
+            grids, info = mesh_grids(*item, options, arcs=arcs)
+            if info["searched"] == "turned":
+                return Prepared(name, grids[0], kind="turned", arcs=grids[1:])
+            if info["searched"] == "round":
+                return Prepared(name, grids[0], placements=grids[1:], kind="round")
+            return Prepared(name, grids[0])
         grid = item if isinstance(item, GridSurface) else GridSurface.from_array(item)
         options.check_grids(grid.shape)
         return Prepared(name, grid)
@@ -217,7 +239,7 @@ def _surface_key(p: Prepared) -> str | None:
     """A digest of a prepared surface: its grid and partitions, and its other corner placements."""
     if p.grid is None:
         return None
-    return _digest(*(a for g in [p.grid, *p.placements] for a in (g.points, g.r, g.t)))
+    return _digest(*(a for g in [p.grid, *p.placements, *p.arcs] for a in (g.points, g.r, g.t)))
 
 
 def _run_key(names, grids, params) -> str:
@@ -289,11 +311,7 @@ def distance_matrix(
         names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
     if len(names) != n:
         raise InputError(f"{len(names)} names for {n} surfaces")
-    prepared = []
-    for item, name in zip(items, names, strict=True):
-        prepared.append(prepare_surface(item, name, options))
-        if preparing is not None:
-            preparing(len(prepared), n)
+    prepared = prepare_collection(items, names, options, preparing)
     run_params = options.as_dict()
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     done = run_checkpointed(
@@ -371,9 +389,49 @@ def _outcome(function, args) -> dict:
         return {"error": f"{type(err).__name__}: {err}"}
 
 
-def _seconds(p: Prepared):
-    """What a surface offers as the second of a pair: its grid, or all its corner placements."""
+def prepare_collection(items: list, names: list[str], options: Options, preparing=None) -> list[Prepared]:
+    """Every item prepared (:func:`prepare_surface`, ``preparing(done, total)`` after each); when the collection
+    has meshes with four clear turns and round-boundary meshes, the turned ones are prepared again with their
+    grids at quarter arc lengths (``arcs``), which their pairs with round ones use (:func:`pair_grids`)."""
+    prepared = []
+    for item, name in zip(items, names, strict=True):
+        prepared.append(prepare_surface(item, name, options))
+        if preparing is not None:
+            preparing(len(prepared), len(items))
+    if any(p.kind == "round" for p in prepared):
+        again = zip(items, names, prepared, strict=True)
+        prepared = [prepare_surface(x, nm, options, arcs=True) if p.kind == "turned" else p for x, nm, p in again]
+    return prepared
+
+
+def _roles(first: Prepared, second: Prepared) -> tuple[bool, bool]:
+    """Whether the pair takes the first surface at its own quarter-arc placement and the second's quarter-arc
+    placements: a mesh with four clear turns against a round-boundary one, placed like it."""
+    return first.kind == "turned" and second.kind == "round" and bool(first.arcs), (
+        first.kind == "round" and second.kind == "turned" and bool(second.arcs)
+    )
+
+
+def _firsts(p: Prepared, arc: bool) -> GridSurface:
+    """What a surface offers as the first of a pair: its grid, or its own quarter-arc placement."""
+    return p.arcs[0] if arc else p.grid
+
+
+def _seconds(p: Prepared, arcs: bool = False):
+    """What a surface offers as the second of a pair: its grid, all its corner placements, or its quarter-arc
+    placements."""
+    if arcs:
+        return list(p.arcs)
     return [p.grid, *p.placements] if p.placements else p.grid
+
+
+def pair_grids(first: Prepared, second: Prepared) -> tuple[GridSurface, GridSurface | list]:
+    """The first surface's grid and the second's grid or list of corner placements for the pair (first, second):
+    round-boundary meshes offer their placements as the second; a mesh with four clear turns against a round one
+    offers its quarter-arc placements instead of its corners (four clear turns on one mesh only are not corners
+    of the surface: the dents of a jagged rim)."""
+    arc, arcs = _roles(first, second)
+    return _firsts(first, arc), _seconds(second, arcs)
 
 
 def run_pairs(prepared, todo, options: Options, finish, *, client=None, jobs: int | None = None, task=None) -> None:
@@ -392,7 +450,7 @@ def run_pairs(prepared, todo, options: Options, finish, *, client=None, jobs: in
 
 
 def _run_local(prepared, todo, options: Options, finish, jobs: int, task) -> None:
-    tasks = [((i, j), (prepared[i].grid, _seconds(prepared[j]), options)) for i, j in todo]
+    tasks = [((i, j), (*pair_grids(prepared[i], prepared[j]), options)) for i, j in todo]
     if jobs <= 1 or len(tasks) <= 1:
         for (i, j), args in tasks:
             finish(i, j, _outcome(task, args))
@@ -403,10 +461,15 @@ def _run_local(prepared, todo, options: Options, finish, jobs: int, task) -> Non
 def _run_dask(client, prepared, todo, options, finish, task) -> None:
     from distributed import as_completed
 
-    used = {k for pair in todo for k in pair}
-    firsts = {k: client.scatter(prepared[k].grid) for k in used}
-    seconds = {k: client.scatter(_seconds(prepared[k])) for k in used}
-    futures = {client.submit(task, firsts[i], seconds[j], options, pure=False): (i, j) for i, j in todo}
+    roles = {(i, j): _roles(prepared[i], prepared[j]) for i, j in todo}
+    firsts = {(i, r[0]): None for (i, _), r in roles.items()}
+    seconds = {(j, r[1]): None for (_, j), r in roles.items()}
+    firsts = {key: client.scatter(_firsts(prepared[key[0]], key[1])) for key in firsts}
+    seconds = {key: client.scatter(_seconds(prepared[key[0]], key[1])) for key in seconds}
+    futures = {
+        client.submit(task, firsts[i, arc], seconds[j, arcs], options, pure=False): (i, j)
+        for (i, j), (arc, arcs) in roles.items()
+    }
     try:
         for future in as_completed(futures):
             i, j = futures[future]

@@ -47,7 +47,7 @@ import numpy as np
 
 from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
-from .batch import Prepared, _run_key, distance_matrix, prepare_surface, registered_pair, run_checkpointed
+from .batch import Prepared, _run_key, distance_matrix, prepare_collection, registered_pair, run_checkpointed
 from .errors import InputError
 from .grid import GridSurface
 from .mesh.export import grid_faces
@@ -89,6 +89,14 @@ def _pack(a: np.ndarray) -> dict:
 
 def _unpack(packed: dict) -> np.ndarray:
     return np.frombuffer(base64.b64decode(packed["data"]), dtype="<f8").reshape(packed["shape"]).copy()
+
+
+def _placed_round(p: Prepared) -> Prepared:
+    """A member with four clear turns in a collection with round-boundary members (its ``arcs``) as a round one:
+    its placements at quarter arc lengths, like theirs (:func:`meshreg.batch.prepare_collection`)."""
+    if not p.arcs:
+        return p
+    return Prepared(p.name, p.arcs[0], placements=p.arcs[1:], kind="round")
 
 
 def _grids(p: Prepared) -> list[GridSurface]:
@@ -198,9 +206,9 @@ def _prepared_members(items: list, names, options: Options) -> tuple[list[Prepar
         names = [str(x) if isinstance(x, (str, Path)) else f"surface {k}" for k, x in enumerate(items)]
     if len(set(names)) != len(names):
         raise InputError("the surfaces' names must be distinct")
-    prepared = [prepare_surface(x, nm, options) for x, nm in zip(items, names, strict=True)]
+    prepared = prepare_collection(items, names, options)
     failures = {p.name: p.error for p in prepared if p.error}
-    members = [p for p in prepared if not p.error]
+    members = [_placed_round(p) for p in prepared if not p.error]
     _enough(members, failures)
     return members, failures
 

@@ -161,6 +161,24 @@ def test_meshes_and_grids_mixed_with_round_boundaries(tmp_path):
     assert d.distance[0, 2] > 3 * d.distance[0, 1] and not d.failures
 
 
+def test_a_mesh_with_four_clear_turns_among_round_ones_is_placed_like_them(bitten_disk):
+    """Held out 2026-12-02: one surface as a coarse mesh whose bitten rim has four clear turns and a fine one whose
+    rim has none. A pair of meshes places both at quarter arc lengths; the distance matrix kept the first's turns as
+    corners and searched the second's placements at quarter arc lengths, which cannot match them: E 0.061 and the
+    rotation 17 degrees off (0.064 and 28 degrees with the meshes swapped)."""
+    from scipy.spatial.transform import Rotation
+
+    from meshreg.rotation import angle_between
+
+    (v1, f1, _), (v2, f2, _) = bitten_disk(1400, 46), bitten_disk(4600, 53)
+    turn = Rotation.random(random_state=46).as_matrix()
+    moved = 2.8 * v2 @ turn.T + [0.3, -1.0, 0.5]
+    d = distance_matrix([(v1, f1), (moved, f2), (v1 + 1.0, f1)], Options(resolution=41), jobs=1)
+    assert d.energy[0, 1] < 0.005 and angle_between(d.rotations[0, 1], turn) < 1.0
+    assert d.energy[1, 2] < 0.005 and angle_between(d.rotations[1, 2], turn.T) < 1.0
+    assert d.energy[0, 2] < 1e-6  # the two turned copies: by their corners
+
+
 def test_a_finished_matrix_is_recognised_and_force_recomputes_it(tmp_path):
     files = []
     for k, pair in enumerate(paper_pairs_small()):

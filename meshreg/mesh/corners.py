@@ -174,24 +174,29 @@ def search_corners(
     return quarter_corners(disk2, best % 1.0), tried
 
 
-def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options):
+def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options, arcs: bool = False):
     """One mesh, on its own, to grid surfaces: clean, map to the square, resample on grids of
     ``options.resolution`` nodes per axis (``options.cleanup``, ``options.weights``, ``options.antialias``).
 
     With four clear corners (or ``options.corner_search=0``), one grid (corners by
     :func:`~meshreg.mesh.harmonic.choose_corners`); else one grid per trial corner placement of
     :func:`placement_starts` (one LU serves them all), the first of which is the mesh's own placement when
-    it is the first surface of a pair; a pair ranks the second's placements by :func:`placement_energy`.
+    it is the first surface of a pair; a pair ranks the second's placements by :func:`placement_energy`. With
+    ``arcs``, a mesh with four clear corners has the grids of its trial placements after its corner grid (a
+    collection with round-boundary meshes places it like them in their pairs).
 
-    Returns the list of GridSurfaces and an info dict (cleanup report, corners, flipped and degenerate counts).
+    Returns the list of GridSurfaces and an info dict (cleanup report, corners, flipped and degenerate counts, and
+    ``searched``: "round" for trial placements, "turned" for four clear corners, else None).
     """
     disk = prepare_disk(vertices, faces, cleanup=options.cleanup)
     hmap = HarmonicMap(disk, options.weights)
-    if options.corner_search > 0 and not has_sharp_corners(disk):
-        placements = placement_corners(hmap, options.corner_search)
-    else:
-        placements = [choose_corners(disk)]
+    searched = None
+    if options.corner_search > 0:
+        searched = "turned" if has_sharp_corners(disk) else "round"
+    placements = [choose_corners(disk)] if searched != "round" else []
+    if searched == "round" or (searched == "turned" and arcs):
+        placements += placement_corners(hmap, options.corner_search)
     maps = [hmap(corners) for corners in placements]
     n = options.resolution
     grids = [resample_grid(disk.vertices, disk.faces, uv, n, n, options.antialias) for uv, _ in maps]
-    return grids, {**maps[0][1], "cleanup": disk.report}
+    return grids, {**maps[0][1], "cleanup": disk.report, "searched": searched}
