@@ -49,7 +49,8 @@ class Atlas:
     h : ndarray (K, M, N, 2)
         Each member's reparametrization: its parameter point at each template grid node (symmetry included).
     symmetries, placements : ndarray (K,) int
-        The symmetry of the square in h, and the corner placement (round-boundary meshes; else 0).
+        The symmetry of the square in h, and the corner placement (round-boundary meshes, and meshes with four
+        clear turns in a collection with round-boundary ones, placed at quarter arc lengths; else 0).
     mean, modes, variances, explained, scores
         PCA of the shapes (aligned members scaled to the template's size: shape, not size): mean (V, 3), unit
         modes (k, V, 3), variances (k,) in squared units, explained variance fractions (k,), scores (K, k) with

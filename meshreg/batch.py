@@ -392,15 +392,21 @@ def _outcome(function, args) -> dict:
 def prepare_collection(items: list, names: list[str], options: Options, preparing=None) -> list[Prepared]:
     """Every item prepared (:func:`prepare_surface`, ``preparing(done, total)`` after each); when the collection
     has meshes with four clear turns and round-boundary meshes, the turned ones are prepared again with their
-    grids at quarter arc lengths (``arcs``), which their pairs with round ones use (:func:`pair_grids`)."""
+    grids at quarter arc lengths (``arcs``), which their pairs with round ones use (:func:`pair_grids`); a turned
+    mesh whose second preparation fails (a boundary too coarse for every trial placement) keeps its first and its
+    corners. ``preparing`` then counts the second preparations on top of the items."""
     prepared = []
     for item, name in zip(items, names, strict=True):
         prepared.append(prepare_surface(item, name, options))
         if preparing is not None:
             preparing(len(prepared), len(items))
-    if any(p.kind == "round" for p in prepared):
-        again = zip(items, names, prepared, strict=True)
-        prepared = [prepare_surface(x, nm, options, arcs=True) if p.kind == "turned" else p for x, nm, p in again]
+    turned = [k for k, p in enumerate(prepared) if p.kind == "turned"]
+    if turned and any(p.kind == "round" for p in prepared):
+        for done, k in enumerate(turned, 1):
+            again = prepare_surface(items[k], names[k], options, arcs=True)
+            prepared[k] = prepared[k] if again.error else again
+            if preparing is not None:
+                preparing(len(items) + done, len(items) + len(turned))
     return prepared
 
 

@@ -147,11 +147,14 @@ def cmd_matrix(args) -> int:
     bars = {}
 
     def preparing(done, total):
-        if "prepare" not in bars:
-            bars["prepare"] = tqdm(desc="preparing surfaces", total=total, unit=" surface", disable=args.quiet)
-        bars["prepare"].update(done - bars["prepare"].n)
+        bar = bars.get("prepare")
+        if bar is None or bar.total != total:  # a second pass (turned meshes among round ones) raises the total
+            bars["prepare"] = bar = tqdm(
+                desc="preparing surfaces", total=total, initial=bar.n if bar else 0, unit=" surface", disable=args.quiet
+            )
+        bar.update(done - bar.n)
         if done == total:
-            bars["prepare"].close()
+            bar.close()
 
     def progress(done, total):
         if "pairs" not in bars:  # resuming: the checkpointed pairs are counted, only the new ones timed

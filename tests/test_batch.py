@@ -179,6 +179,21 @@ def test_a_mesh_with_four_clear_turns_among_round_ones_is_placed_like_them(bitte
     assert d.energy[0, 2] < 1e-6  # the two turned copies: by their corners
 
 
+def test_a_turned_mesh_too_coarse_for_quarter_arc_placements_keeps_its_corners(bitten_disk):
+    """A long kite with only its four corners on the boundary has no four distinct quarter points from most starts:
+    its second preparation (among round meshes) fails, and it keeps its first (a review found it skipped)."""
+    from matplotlib.path import Path as Outline
+    from scipy.spatial import Delaunay
+
+    corners = np.array([[0, 0], [2.598, -1.5], [3.857, 0], [2.598, 1.5]])  # angles 60, 100, 100 and 100 degrees
+    inner = np.random.default_rng(0).uniform(corners.min(0), corners.max(0), (3000, 2))
+    uv = np.vstack([corners, inner[Outline(corners).contains_points(inner, radius=-0.05)][:150]])
+    kite = (np.c_[uv, 0.1 * np.sin(uv[:, 0]) * np.cos(2 * uv[:, 1])], Delaunay(uv).simplices)
+    disk = bitten_disk(1500, 53)[:2]
+    d = distance_matrix([kite, (kite[0] + 1.0, kite[1]), disk], Options(resolution=21), jobs=1)
+    assert not d.skipped and not d.failures and d.energy[0, 1] < 1e-12 and np.isfinite(d.energy).all()
+
+
 def test_a_finished_matrix_is_recognised_and_force_recomputes_it(tmp_path):
     files = []
     for k, pair in enumerate(paper_pairs_small()):
