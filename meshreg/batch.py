@@ -441,12 +441,12 @@ def pair_grids(first: Prepared, second: Prepared) -> tuple[GridSurface, GridSurf
 
 
 def run_pairs(prepared, todo, options: Options, finish, *, client=None, jobs: int | None = None, task=None) -> None:
-    """Run ``task(prepared[i].grid, second, options)`` for each pair (i, j) of ``todo``, ``second`` being surface
-    j's grid or its corner placements, on the Dask ``client`` or a local pool of ``jobs`` processes (default: the
-    machine's cores; 1 runs in this process; a lost process costs only its pair), and call ``finish(i, j,
-    record)`` as each ends (a failed pair's record is ``{"error": reason}``). ``task`` defaults to
-    :func:`register_pair`; it must be picklable. Each pair runs in one process (``Advanced.processes`` = 1): the
-    pairs already keep the workers busy."""
+    """Run ``task(first, second, options)`` for each pair (i, j) of ``todo``, ``first`` and ``second`` being what
+    :func:`pair_grids` takes of surfaces i and j (a grid; j's corner placements), on the Dask ``client`` or a local
+    pool of ``jobs`` processes (default: the machine's cores; 1 runs in this process; a lost process costs only its
+    pair), and call ``finish(i, j, record)`` as each ends (a failed pair's record is ``{"error": reason}``).
+    ``task`` defaults to :func:`register_pair`; it must be picklable. Each pair runs in one process
+    (``Advanced.processes`` = 1): the pairs already keep the workers busy."""
     task = task or register_pair
     options = options.replace(advanced=replace(options.advanced, processes=1))
     if client is not None:
@@ -468,10 +468,10 @@ def _run_dask(client, prepared, todo, options, finish, task) -> None:
     from distributed import as_completed
 
     roles = {(i, j): _roles(prepared[i], prepared[j]) for i, j in todo}
-    firsts = {(i, r[0]): None for (i, _), r in roles.items()}
-    seconds = {(j, r[1]): None for (_, j), r in roles.items()}
-    firsts = {key: client.scatter(_firsts(prepared[key[0]], key[1])) for key in firsts}
-    seconds = {key: client.scatter(_seconds(prepared[key[0]], key[1])) for key in seconds}
+    as_first = {(i, arc) for (i, _), (arc, _) in roles.items()}  # each surface scattered once per role it plays
+    as_second = {(j, arcs) for (_, j), (_, arcs) in roles.items()}
+    firsts = {(i, arc): client.scatter(_firsts(prepared[i], arc)) for i, arc in as_first}
+    seconds = {(j, arcs): client.scatter(_seconds(prepared[j], arcs)) for j, arcs in as_second}
     futures = {
         client.submit(task, firsts[i, arc], seconds[j, arcs], options, pure=False): (i, j)
         for (i, j), (arc, arcs) in roles.items()
