@@ -43,7 +43,7 @@ def test_every_form_of_a_mesh_gives_the_same_registration(pair, result, tmp_path
     from_trimesh = meshreg.register(
         trimesh.Trimesh(v1, f1, process=False), trimesh.Trimesh(v2, f2, process=False), resolution=41
     )
-    # files round the coordinates: trimesh 5 writes a PLY's as float32 (1.2e-7 here), which moved E by 1.7e-4
+    # files round the coordinates: a PLY from trimesh holds float32 (1.2e-7 here), which moved E by 1.7e-4 (2026-12-02)
     assert from_files.energy == pytest.approx(result.energy, rel=1e-3)
     assert from_trimesh.energy == result.energy and np.array_equal(from_trimesh.h, result.h)
 

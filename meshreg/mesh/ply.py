@@ -5,8 +5,8 @@ besides the vertex list) is left to trimesh (:func:`meshreg.mesh.topology.load_m
 same arrays.
 
 - :func:`read_ply`: vertices (n, 3) and triangles (m, 3) of a binary PLY file, or None for another layout.
-- :func:`write_ply_bytes`: the bytes of a binary little-endian PLY file with per-vertex RGBA colours, laid out as
-  trimesh's ``export_ply`` writes them (float32 positions, uchar RGBA, uchar counts and int32 indices).
+- :func:`write_ply_bytes`: the bytes of a binary little-endian PLY file with per-vertex RGBA colours: double
+  positions (trimesh's ``export_ply`` writes float32), uchar RGBA, uchar counts and int32 indices.
 """
 
 from __future__ import annotations
