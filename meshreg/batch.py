@@ -413,9 +413,7 @@ def prepare_collection(items: list, names: list[str], options: Options, preparin
 def _roles(first: Prepared, second: Prepared) -> tuple[bool, bool]:
     """Whether the pair takes the first surface at its own quarter-arc placement and the second's quarter-arc
     placements: a mesh with four clear turns against a round-boundary one, placed like it."""
-    return first.kind == "turned" and second.kind == "round" and bool(first.arcs), (
-        first.kind == "round" and second.kind == "turned" and bool(second.arcs)
-    )
+    return bool(first.arcs) and second.kind == "round", first.kind == "round" and bool(second.arcs)  # arcs: turned
 
 
 def _firsts(p: Prepared, arc: bool) -> GridSurface:
