@@ -58,6 +58,7 @@ FINALISTS = 3  # candidates refined on every sample point
 SCALE_TIE = 0.05  # scales within this log ratio of one another are tried once
 POINT_WEIGHT = 0.0  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
 AXES_TURNS = (0.0, 90.0)  # degrees: turns of the principal-axes poses about the third axis (axes_pose)
+UNIT_REFINED = 0.5  # axes_pose refines the pose at scale 1 when, coarsely, it scores this fraction of the best's
 ICP_VOXEL = 0.03  # voxel of the ICP samples, in units of sqrt(area) of each mesh (>= 1 edge length)
 
 
@@ -438,8 +439,9 @@ def axes_pose(first: Surface, second: Surface) -> Alignment | None:
     AXES_TURNS about the third axis, the normal of a sheet: the first two axes of a round or square patch are
     arbitrary) at the scale of the ratio of their areas (1 when within SCALE_TIE of it, as in :func:`align`), each
     refined by the coarse ICP, the best (by :func:`overlap_scores`) by the fine one. At another scale than 1, the
-    same rotation at scale 1 is refined too, and when it overlaps better (a crop in the same units, which the
-    ratio of the areas would blow up to the whole) the answer is None. No feature search: :func:`align` is the
+    same rotation at scale 1 is refined too (by the coarse ICP, and by the fine one unless it then scores below
+    UNIT_REFINED times the best coarse pose at the level that ranks the two), and when it overlaps better (a crop
+    in the same units, which the ratio of the areas would blow up to the whole) the answer is None. No feature search: :func:`align` is the
     general answer."""
     rng = np.random.default_rng(RANSAC_SEED)
     scale = areas_scale(first, second)
@@ -462,8 +464,11 @@ def axes_pose(first: Surface, second: Surface) -> Alignment | None:
     matrix, rms = icp(cloud2, first, poses[best], iterations=ICP_FINE)
     finals = [(matrix, rms)]
     if scale != 1.0:
-        unit = _similarity(poses[best][:3, :3] / scale, 1.0, c2, c1)
-        finals.append(icp(cloud2, first, icp(coarse, first, unit)[0], iterations=ICP_FINE))
+        unit = icp(coarse, first, _similarity(poses[best][:3, :3] / scale, 1.0, c2, c1))[0]
+        coarsely = np.array([scores[best], overlap_scores(cloud1, first, cloud2, second, unit)])
+        level = _ranking(coarsely)
+        if coarsely[1, level] >= UNIT_REFINED * coarsely[0, level]:  # else far behind: the fine ICP cannot close it
+            finals.append(icp(cloud2, first, unit, iterations=ICP_FINE))
     scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m, _ in finals])
     if int(np.argmax(scores[:, _ranking(scores)])) != 0:
         return None

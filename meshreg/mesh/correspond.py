@@ -111,9 +111,8 @@ def register_meshes(
     if options.overlap == "off":
         return register_disks(disks, maps, n_input, infos, options, callback)
     fork = options.advanced.processes > 1 and sum(len(d.faces) for d in disks) >= FORK_FACES and can_fork()
-    if fork:  # the Laplacians here, their LUs in the child: then both sides take about as long
-        _assembled(maps)
-    with Forked(square_maps, disks, maps, options, fork=fork) as squares:  # the maps, beside the overlap check
+    # the maps (Laplacians, LUs, solves) in the child, beside the overlap check: both take about as long
+    with Forked(square_maps, disks, maps, options, fork=fork) as squares:
         found = rigid_overlap(disks[0], disks[1], options.advanced.overlap_quick)
         mapped = None if found.regime == "rigid" else squares.result()
     if found.regime == "rigid":
@@ -158,16 +157,6 @@ def _check_corners(disk: DiskMesh, options: Options, name: str) -> None:
             given_corners(disk, disk.input_ids(ids))
         except InputError as err:
             raise InputError(f"{option}: {err}") from None
-
-
-def _assembled(maps: list[HarmonicMap]) -> None:
-    """Assemble the maps' Laplacians ahead of their use; an error is left for the use to meet (the regime may not
-    need the maps at all)."""
-    try:
-        for m in maps:
-            m.assemble()
-    except Exception:  # noqa: BLE001 - met again, in its place, where the maps are used
-        pass
 
 
 @dataclass
