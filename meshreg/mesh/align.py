@@ -441,8 +441,8 @@ def axes_pose(first: Surface, second: Surface) -> Alignment | None:
     refined by the coarse ICP, the best (by :func:`overlap_scores`) by the fine one. At another scale than 1, the
     same rotation at scale 1 is refined too (by the coarse ICP, and by the fine one unless it then scores below
     UNIT_REFINED times the best coarse pose at the level that ranks the two), and when it overlaps better (a crop
-    in the same units, which the ratio of the areas would blow up to the whole) the answer is None. No feature search: :func:`align` is the
-    general answer."""
+    in the same units, which the ratio of the areas would blow up to the whole) the answer is None. No feature
+    search: :func:`align` is the general answer."""
     rng = np.random.default_rng(RANSAC_SEED)
     scale = areas_scale(first, second)
     scale = 1.0 if abs(np.log(scale)) <= SCALE_TIE else scale
