@@ -9,14 +9,15 @@ the minimum found 0.53). So for meshes (``Options.bend_window`` > 0, mode "auto"
 1. the symmetry of the square (which corner of the second's square is (0, 0), and whether r and t swap) is chosen
    by the ranking's E_w (:func:`meshreg.local_rotation.local_energy`) at h = that symmetry, in windows of
    ``advanced.choice_window``, on coarse grids: local rotations absorb the bending, the relief within a window
-   decides;
+   decides (and a nearly as low one that fits the points far better wins: :func:`preferred`);
 2. from h = the symmetry (the parametrizations' own correspondence), h descends on the descent's E_w
    (:class:`meshreg.local_rotation.LocalObjective`: each cell under its own rotation and scale) with windows of
    ``bend_window``, in the basis of the descent (KL = ``basis``), then in the refinement levels that are not
    finer than ``finest``: for meshes, ``advanced.refine_triangles`` triangles, since below a few triangles two
    meshes of one surface are different piecewise-linear surfaces and a finer h fits their difference, not the
    correspondence; several symmetries that rank within CHOICE_MARGIN of the best (at most ``max_starts``) are
-   each descended and the lowest E_w wins;
+   each descended and the lowest E_w wins, unless one nearly as low fits the points far better
+   (:func:`preferred`);
 3. E itself is reported at the answer (at its best rotation), so that energies stay comparable with every other
    registration; ``params["bend_energy"]`` holds E_w.
 
@@ -45,6 +46,12 @@ from .search import Start, apply_symmetry, symmetry_map, tried_symmetries
 
 CHOICE_GRID = 41  # nodes per axis of the coarse grids on which symmetries and corner placements are ranked
 CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction of the best are descended too
+# E_w alone can prefer a wrong match of a nearly symmetric pair: a five-lobed star over a saddle, remeshed, turned and
+# scaled, had its half-turned match (lobes on notches, coordinate residual 0.24-0.28) rank first at E_w 0.0052-0.0057,
+# the right one (residual 0.021-0.027) 1.27-1.28 times that. Among matches within RESIDUAL_TIE times the lowest E_w,
+# one whose coordinate residual is below RESIDUAL_GAIN times the lowest's is preferred (:func:`preferred`)
+RESIDUAL_TIE = 1.5
+RESIDUAL_GAIN = 0.5
 # a twin of the answer (a symmetry of either surface applied to it) is refined only when its residual as it stands
 # is within this of the answer's (area-1 length): measured 0.002-0.009 above on a four-fold symmetric sheet's
 # remeshed copy (true twins), 0.096 and more on the folded relief sheet (a flat square's symmetries, not the fold's)
@@ -70,19 +77,39 @@ def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
     return surface.scaled().resampled(n, n)
 
 
-def symmetry_energies(first: GridSurface, second: GridSurface, window: float, tried) -> list[tuple[int, float, bool]]:
-    """(symmetry, E_w at h = that symmetry, whether that match is mirrored) for each symmetry of the square in
-    ``tried``, lowest E_w first. Both surfaces are ranked on :func:`coarse` grids with windows of ``window`` (side
-    lengths); a match is mirrored when the first, rotated by Kabsch, lies on the point reflection of the second
-    (:mod:`meshreg.residual`): E_w, like E, cannot tell them apart."""
+def symmetry_energies(
+    first: GridSurface, second: GridSurface, window: float, tried
+) -> list[tuple[int, float, bool, float]]:
+    """(symmetry, E_w at h = that symmetry, whether that match is mirrored, its coordinate residual) for each
+    symmetry of the square in ``tried``, lowest E_w first. Both surfaces are ranked on :func:`coarse` grids with
+    windows of ``window`` (side lengths); a match is mirrored when the first, rotated by Kabsch, lies on the point
+    reflection of the second (:mod:`meshreg.residual`): E_w, like E, cannot tell them apart. The residual is the
+    area-weighted RMS of R c1 - c2 at area 1 (:class:`~meshreg.residual.Residual`)."""
     a, b = coarse(first), coarse(second)
     out = []
     for k in tried:
         copy = apply_symmetry(b, k)
         plain = Objective(a, copy, copy.area())
-        mirrored = plain.judge(plain.identity)[2].mirrored
-        out.append((k, local_energy(a.points, copy.points, a.r, a.t, window), mirrored))
+        residual = plain.judge(plain.identity)[2]
+        out.append((k, local_energy(a.points, copy.points, a.r, a.t, window), residual.mirrored, residual.plus))
     return sorted(out, key=lambda x: x[1])
+
+
+def preferred(energies, residuals) -> int:
+    """Index of the preferred match among matches with ``energies`` (E_w, (m,)) and coordinate ``residuals`` (m,):
+    the lowest E_w, unless a match within RESIDUAL_TIE times it fits the points with a residual below RESIDUAL_GAIN
+    times the lowest's; then the lowest residual among those within RESIDUAL_TIE.
+
+    >>> preferred([0.0052, 0.0066, 0.0100], [0.252, 0.024, 0.001])
+    1
+    >>> preferred([0.0052, 0.0066], [0.252, 0.200])
+    0
+    """
+    energies, residuals = np.asarray(energies, dtype=float), np.asarray(residuals, dtype=float)
+    best = int(np.argmin(energies))
+    tied = np.flatnonzero(energies <= RESIDUAL_TIE * energies[best])
+    fit = int(tied[np.argmin(residuals[tied])])
+    return fit if residuals[fit] < RESIDUAL_GAIN * residuals[best] else best
 
 
 def descent_window(first: GridSurface, bend_window: float) -> float:
@@ -159,15 +186,16 @@ def register_bending(
 
 def _ranked_symmetries(first: GridSurface, second: GridSurface, options: Options, symmetry: int | None):
     """The symmetries of the square tried, ranked by E_w at h = each (:func:`symmetry_energies`), the ones within
-    CHOICE_MARGIN of the best unmirrored one (at most ``options.max_starts``: descended first) and the other
-    unmirrored ones (spares, best first)."""
+    CHOICE_MARGIN of the :func:`preferred` unmirrored one (at most ``options.max_starts``: descended first, the
+    preferred one first) and the other unmirrored ones (spares, best first)."""
     tried = tried_symmetries(options.search and options.symmetries, options.keep_orientation, symmetry)
     ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
-    fair = [(k, e) for k, e, mirrored in ranked if not mirrored]
+    fair = [(k, e, r) for k, e, mirrored, r in ranked if not mirrored]
     if not fair:
         raise every_start_mirrored(symmetry)
-    close = [k for k, e in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
-    return ranked, close, [k for k, _ in fair if k not in close]
+    fair.insert(0, fair.pop(preferred([e for _, e, _ in fair], [r for *_, r in fair])))
+    close = [k for k, e, _ in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
+    return ranked, close, [k for k, *_ in fair if k not in close]
 
 
 def _registration(chosen, first: GridSurface, second: GridSurface, options: Options, params, timings, alternatives):
@@ -202,7 +230,10 @@ def _params(options: Options, chosen, runs, ranked, window: float, first: GridSu
         "bend_window_used": window,
         "bend_fit_residual": chosen.fit_residual,
         "bend_scaled": chosen.scaled,
-        "symmetry_ranking": [{"symmetry": s, "choice_energy": float(e), "mirrored": m} for s, e, m in ranked],
+        "symmetry_ranking": [
+            {"symmetry": s, "choice_energy": float(e), "mirrored": m, "choice_residual": float(r)}
+            for s, e, m, r in ranked
+        ],
         "mirror": mirror_record(*_mirror_starts(ranked, chosen.symmetry), chosen.residual.plus),
         "starts": [
             {
@@ -221,20 +252,22 @@ def _params(options: Options, chosen, runs, ranked, window: float, first: GridSu
 
 def _unmirrored(close: list[int], spare: list[int], descend) -> tuple[BentRun, list[BentRun]]:
     """Descend the ``close`` symmetries; while every run ends on the mirror image of the second, the ``spare``
-    ones, best ranked first. Returns the run of lowest E_w that is not mirrored, and every run."""
+    ones, best ranked first. Returns the :func:`preferred` run (by E_w and the coordinate residual) of those that
+    are not mirrored, and every run."""
     runs = [descend(k) for k in close]
     while all(run.residual.mirrored for run in runs):
         if not spare:
             raise every_match_mirrored(min(run.energy for run in runs))
         runs.append(descend(spare.pop(0)))
-    return min((run for run in runs if not run.residual.mirrored), key=lambda run: run.bend_energy), runs
+    fair = [run for run in runs if not run.residual.mirrored]
+    return fair[preferred([run.bend_energy for run in fair], [run.residual.plus for run in fair])], runs
 
 
 def _mirror_starts(ranked, chosen: int) -> tuple[Start | None, Start]:
     """The best mirrored entry of the E_w ranking and the chosen one, as starts for
     :func:`~meshreg.choice.mirror_record` (their ``coarse_energy`` is E_w at h = the symmetry)."""
-    mirror = next((Start(k, None, e) for k, e, mirrored in ranked if mirrored), None)
-    return mirror, next(Start(k, None, e) for k, e, _ in ranked if k == chosen)
+    mirror = next((Start(k, None, e) for k, e, mirrored, _ in ranked if mirrored), None)
+    return mirror, next(Start(k, None, e) for k, e, *_ in ranked if k == chosen)
 
 
 @dataclass

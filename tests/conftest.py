@@ -8,25 +8,20 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 
-def _bitten_disk(points: int, seed: int):
-    """A relief over the unit disk with a square bite out of its rim: boundary points every 0.7 spacings, random
-    points inside, Delaunay triangles whose centroid and side points lie inside; vertices (n, 3), faces, (u, v).
-    (A probe's domain, /tmp/h3/gen.py of 2026-12-02.)"""
+def _outlined_mesh(rim: np.ndarray, area: float, points: int, seed: int, box: float = 1.0):
+    """A planar mesh of about ``points`` vertices inside the closed polygon ``rim`` (k, 2) of the given ``area``:
+    boundary points every 0.7 spacings, random points inside (drawn in [-box, box]^2), Delaunay triangles whose
+    centroid and side points lie inside; (u, v) (n, 2) and faces (m, 3). (A probe's domains, /tmp/h3/gen.py of
+    2026-12-02.)"""
     from matplotlib.path import Path as Outline
 
-    turn = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
-    half = np.arcsin(0.18)
-    turn = np.sort(np.mod(turn[np.abs(np.angle(np.exp(1j * turn))) > half] - half, 2 * np.pi)) + half
-    corners = np.array([[np.cos(half), -0.18], [0.75, -0.18], [0.75, 0.18], [np.cos(half), 0.18]])
-    bite = np.vstack([np.linspace(corners[i], corners[i + 1], 40, endpoint=False) for i in range(3)] + [corners[3:]])
-    rim = np.vstack([np.c_[np.cos(turn), np.sin(turn)], bite])
     closed = np.vstack([rim, rim[:1]])
     length = np.r_[0, np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
-    spacing = np.sqrt(np.pi / points)
+    spacing = np.sqrt(area / points)
     at = np.linspace(0, length[-1], int(length[-1] / (0.7 * spacing)), endpoint=False)
     edge = np.c_[np.interp(at, length, closed[:, 0]), np.interp(at, length, closed[:, 1])]
     outline, rng = Outline(rim), np.random.default_rng(seed)
-    inner = rng.uniform(-1, 1, (4 * points, 2))
+    inner = rng.uniform(-box, box, (4 * points, 2))
     inner = inner[outline.contains_points(inner, radius=-1e-9)]
     inner = inner[np.min(np.linalg.norm(inner[:, None] - edge[None, ::4], axis=2), axis=1) > 0.5 * spacing]
     uv = np.vstack([edge, inner[: points - len(edge)]])
@@ -39,7 +34,18 @@ def _bitten_disk(points: int, seed: int):
     )
     faces = faces[inside]
     used = np.unique(faces)
-    uv, faces = uv[used], np.searchsorted(used, faces)
+    return uv[used], np.searchsorted(used, faces)
+
+
+def _bitten_disk(points: int, seed: int):
+    """A relief over the unit disk with a square bite out of its rim (:func:`_outlined_mesh`); vertices (n, 3),
+    faces, (u, v)."""
+    turn = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
+    half = np.arcsin(0.18)
+    turn = np.sort(np.mod(turn[np.abs(np.angle(np.exp(1j * turn))) > half] - half, 2 * np.pi)) + half
+    corners = np.array([[np.cos(half), -0.18], [0.75, -0.18], [0.75, 0.18], [np.cos(half), 0.18]])
+    bite = np.vstack([np.linspace(corners[i], corners[i + 1], 40, endpoint=False) for i in range(3)] + [corners[3:]])
+    uv, faces = _outlined_mesh(np.vstack([np.c_[np.cos(turn), np.sin(turn)], bite]), np.pi, points, seed)
     bumps = np.random.default_rng(1046)
     z = np.zeros(len(uv))
     for _ in range(5):
@@ -48,8 +54,25 @@ def _bitten_disk(points: int, seed: int):
     return np.c_[uv, z], faces, uv
 
 
+def _star_saddle(points: int, seed: int):
+    """The saddle z = 0.4 (x^2 - y^2) over a five-lobed star r = 1 + 0.25 cos 5t (:func:`_outlined_mesh`); vertices
+    (n, 3), faces, (u, v). Turned by half a turn the saddle is the same and the star puts lobes on notches."""
+    turn = np.linspace(0, 2 * np.pi, 3000, endpoint=False)
+    radius = 1 + 0.25 * np.cos(5 * turn)
+    rim = np.c_[radius * np.cos(turn), radius * np.sin(turn)]
+    area = 0.5 * abs(np.sum(rim[:, 0] * np.roll(rim[:, 1], -1) - np.roll(rim[:, 0], -1) * rim[:, 1]))
+    uv, faces = _outlined_mesh(rim, area, points, seed, box=1.25)
+    return np.c_[uv, 0.4 * (uv[:, 0] ** 2 - uv[:, 1] ** 2)], faces, uv
+
+
 @pytest.fixture
 def bitten_disk():
     """:func:`_bitten_disk`: a relief over the unit disk with a square bite out of its rim (four clear turns bunched
     in a tenth of the rim at low resolution, none at high)."""
     return _bitten_disk
+
+
+@pytest.fixture
+def star_saddle():
+    """:func:`_star_saddle`: a saddle over a five-lobed star (nearly the same under half a turn)."""
+    return _star_saddle

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bending import CHOICE_GRID, symmetry_energies
+from ..bending import CHOICE_GRID, RESIDUAL_GAIN, preferred, symmetry_energies
 from ..errors import InputError
 from ..grid import GridSurface
 from ..options import Options
@@ -29,6 +29,11 @@ from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk, triangle_areas
 
 CORNER_SEARCH_GRID = 21  # coarse grid on which :func:`best_placement` ranks the trial placements (by coarse DP)
+# a trial placement whose E_w is within this factor of the best trial's, but whose coordinate residual is below
+# RESIDUAL_GAIN times the best's, may sit beside a narrow minimum the trials stepped over: it is refined too (the
+# five-lobed star over a saddle: E_w 2.2 times the best, residual 0.052 against 0.256, and 0.015 of the boundary
+# from a placement at 1.28 times the best E_w with residual 0.027, the right one)
+FITTING_REACH = 3.0
 PLACEMENT_HALVINGS = 4  # halving steps around the best trial: the pair's corner search, a round boundary's own start
 OWN_TRIALS = 8  # trial starts of a round boundary's own corner placement, over a quarter of it (:func:`own_start`)
 SQUEEZE_GAIN = 0.5  # ... which moves off choose_corners' start only to a map squeezing the surface less than this much
@@ -70,13 +75,15 @@ def own_start(hmap: HarmonicMap) -> float:
     return best[0] if best[1] < SQUEEZE_GAIN * tried[0][1] else tried[0][0]
 
 
-def _lowest(rank, starts: np.ndarray, step: float) -> list[tuple[float, float]]:
+def _lowest(rank, starts: np.ndarray, step: float, best=None) -> list[tuple[float, object]]:
     """(start mod 1, rank) of every start tried: ``starts``, then PLACEMENT_HALVINGS pairs of steps around the
-    lowest rank so far, from ``step`` / 2 and halving."""
+    best so far, from ``step`` / 2 and halving. ``best(ranks)``: the index of the best of a list of ranks (default:
+    the lowest)."""
+    best = best or (lambda ranks: int(np.argmin(ranks)))
     tried = [(float(start) % 1.0, rank(start)) for start in starts]
     for _ in range(PLACEMENT_HALVINGS):
-        best, step = min(tried, key=lambda x: x[1])[0], step / 2
-        tried += [((best + d) % 1.0, rank(best + d)) for d in (-step, step)]
+        centre, step = tried[best([r for _, r in tried])][0], step / 2
+        tried += [((centre + d) % 1.0, rank(centre + d)) for d in (-step, step)]
     return tried
 
 
@@ -146,15 +153,16 @@ def search_corners(
     """Corners of the second mesh that best match the first's: the ``options.corner_search`` placements of
     :func:`placement_starts` from the second's own start (:func:`own_start`; four times as many, over the whole
     boundary, when the square's quarter turns are not tried: ``search`` or ``symmetries`` off, or a pinned
-    ``symmetry``), then PLACEMENT_HALVINGS halving steps around the best, each ranked by the lowest E_w over the
-    symmetries of the square at h = the symmetry, mirrored matches aside (:func:`meshreg.bending.symmetry_energies`,
-    windows of ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids).
+    ``symmetry``), then PLACEMENT_HALVINGS halving steps around the best, each ranked by E_w over the symmetries of
+    the square at h = the symmetry, mirrored matches aside (:func:`meshreg.bending.symmetry_energies`, windows of
+    ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids): the lowest, unless one nearly as low
+    fits the points far better (:func:`meshreg.bending.preferred`, which also picks the best placement).
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
     different places, and no reparametrization that keeps the corners can undo that. This finds them; E_w
     compares normals under rotations that vary over the square, so a bent copy is placed like an unbent one.
 
-    Returns the second's corner loop positions (4,) and the (start, rank) pairs tried.
+    Returns the second's corner loop positions (4,) and the (start, E_w) pairs tried.
     """
     n, trials = CHOICE_GRID, options.corner_search
     symmetries = tried_symmetries(options.search and options.symmetries, options.keep_orientation, options.symmetry)
@@ -165,13 +173,31 @@ def search_corners(
 
     def rank(start):
         grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n, aa)
-        ranked = symmetry_energies(coarse1, grid, window, symmetries)
-        return next((e for _, e, mirrored in ranked if not mirrored), np.inf)  # only mirrored matches: last
+        fair = [(e, r) for _, e, mirrored, r in symmetry_energies(coarse1, grid, window, symmetries) if not mirrored]
+        return fair[_best(fair)] if fair else (np.inf, np.inf)  # only mirrored matches: last
 
     count = round(trials * span / 0.25)  # the same spacing, 1 / (4 trials) of the boundary, over the span
-    tried = _lowest(rank, placement_starts(disk2, count, span, own_start(second)), 0.25 / trials)
-    best = min(tried, key=lambda x: x[1])[0]
-    return quarter_corners(disk2, best % 1.0), tried
+    tried = _lowest(rank, placement_starts(disk2, count, span, own_start(second)), 0.25 / trials, _best)
+    fitting = _fitting(tried[:count])
+    if fitting is not None:  # a narrow minimum of E_w between the trials, where the points fit: refined too
+        tried += _lowest(rank, [fitting], 0.25 / trials, _best)[1:]
+    best = tried[_best([r for _, r in tried])][0]
+    return quarter_corners(disk2, best % 1.0), [(start, float(e)) for start, (e, _) in tried]
+
+
+def _fitting(tried: list[tuple[float, tuple[float, float]]]) -> float | None:
+    """The start, among ``tried`` (start, (E_w, residual)), that fits the points best when its coordinate residual
+    is below RESIDUAL_GAIN times the best start's (:func:`_best`) and its E_w within FITTING_REACH times it; else
+    None."""
+    ranks = np.array([r for _, r in tried])
+    energy, residual = ranks[_best(list(map(tuple, ranks)))]
+    near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < RESIDUAL_GAIN * residual)
+    return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))][0] if near.any() else None
+
+
+def _best(ranks: list[tuple[float, float]]) -> int:
+    """Index of the best of (E_w, coordinate residual) ranks: :func:`meshreg.bending.preferred`."""
+    return preferred([e for e, _ in ranks], [r for _, r in ranks])
 
 
 def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options, arcs: bool = False):
