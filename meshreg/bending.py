@@ -49,9 +49,12 @@ CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction
 # E_w alone can prefer a wrong match of a nearly symmetric pair: a five-lobed star over a saddle, remeshed, turned and
 # scaled, had its half-turned match (lobes on notches, coordinate residual 0.24-0.28) rank first at E_w 0.0052-0.0057,
 # the right one (residual 0.021-0.027) 1.27-1.28 times that. Among matches within RESIDUAL_TIE times the lowest E_w,
-# one whose coordinate residual is below RESIDUAL_GAIN times the lowest's is preferred (:func:`preferred`)
+# one whose coordinate residual is below RESIDUAL_GAIN times the lowest's is preferred (:func:`preferred`), when the
+# lowest's is at least RESIDUAL_FLOOR (area-1 length: it does not fit the points; right matches of the star measured
+# 0.012-0.027, and on pairs whose every placement fits, a lower residual came with a higher E: 0.00035 -> 0.00106)
 RESIDUAL_TIE = 1.5
 RESIDUAL_GAIN = 0.5
+RESIDUAL_FLOOR = 0.1
 # a twin of the answer (a symmetry of either surface applied to it) is refined only when its residual as it stands
 # is within this of the answer's (area-1 length): measured 0.002-0.009 above on a four-fold symmetric sheet's
 # remeshed copy (true twins), 0.096 and more on the folded relief sheet (a flat square's symmetries, not the fold's)
@@ -97,19 +100,22 @@ def symmetry_energies(
 
 def preferred(energies, residuals) -> int:
     """Index of the preferred match among matches with ``energies`` (E_w, (m,)) and coordinate ``residuals`` (m,):
-    the lowest E_w, unless a match within RESIDUAL_TIE times it fits the points with a residual below RESIDUAL_GAIN
-    times the lowest's; then the lowest residual among those within RESIDUAL_TIE.
+    the lowest E_w, unless its residual is at least RESIDUAL_FLOOR and a match within RESIDUAL_TIE times it fits
+    the points with a residual below RESIDUAL_GAIN times the lowest's; then the lowest residual among those within
+    RESIDUAL_TIE.
 
     >>> preferred([0.0052, 0.0066, 0.0100], [0.252, 0.024, 0.001])
     1
     >>> preferred([0.0052, 0.0066], [0.252, 0.200])
+    0
+    >>> preferred([0.0052, 0.0066], [0.030, 0.010])
     0
     """
     energies, residuals = np.asarray(energies, dtype=float), np.asarray(residuals, dtype=float)
     best = int(np.argmin(energies))
     tied = np.flatnonzero(energies <= RESIDUAL_TIE * energies[best])
     fit = int(tied[np.argmin(residuals[tied])])
-    return fit if residuals[fit] < RESIDUAL_GAIN * residuals[best] else best
+    return fit if residuals[best] >= RESIDUAL_FLOOR and residuals[fit] < RESIDUAL_GAIN * residuals[best] else best
 
 
 def descent_window(first: GridSurface, bend_window: float) -> float:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bending import CHOICE_GRID, RESIDUAL_GAIN, preferred, symmetry_energies
+from ..bending import CHOICE_GRID, RESIDUAL_FLOOR, RESIDUAL_GAIN, preferred, symmetry_energies
 from ..errors import InputError
 from ..grid import GridSurface
 from ..options import Options
@@ -186,12 +186,13 @@ def search_corners(
 
 
 def _fitting(tried: list[tuple[float, tuple[float, float]]]) -> float | None:
-    """The start, among ``tried`` (start, (E_w, residual)), that fits the points best when its coordinate residual
-    is below RESIDUAL_GAIN times the best start's (:func:`_best`) and its E_w within FITTING_REACH times it; else
-    None."""
+    """The start, among ``tried`` (start, (E_w, residual)), that fits the points best when the best start's
+    (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR, its own is below RESIDUAL_GAIN times that and
+    its E_w within FITTING_REACH times the best's; else None."""
     ranks = np.array([r for _, r in tried])
     energy, residual = ranks[_best(list(map(tuple, ranks)))]
     near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < RESIDUAL_GAIN * residual)
+    near &= residual >= RESIDUAL_FLOOR
     return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))][0] if near.any() else None
 
 
