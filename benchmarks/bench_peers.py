@@ -133,9 +133,10 @@ def run_meshreg(pair: deform.Pair, options: Options) -> tuple[Outcome, Outcome, 
     if "bend_energy" in mr.result.params:
         note += f", E_w = {mr.result.params['bend_energy']:.3g}"
         ranking = mr.result.params["symmetry_ranking"]
-        ranked = [s["choice_energy"] for s in ranking if not s["mirrored"]]
-        if len(ranked) > 1:  # how clearly E_w at the start picked the square's symmetry
-            note += f", symmetry {mr.result.symmetry}: next E_w {ranked[1] / ranked[0]:.2f} x"
+        chosen = next(s["choice_energy"] for s in ranking if s["symmetry"] == mr.result.symmetry)
+        others = [s["choice_energy"] for s in ranking if not s["mirrored"] and s["symmetry"] != mr.result.symmetry]
+        if others:  # how clearly E_w at the start picked the square's symmetry (below 1: the residual overrode it)
+            note += f", symmetry {mr.result.symmetry}: next E_w {min(others) / chosen:.2f} x"
     if "overlap" in mr.result.info:
         o = mr.result.info["overlap"]
         note += f"; overlap {o['regime']}, {o['first_fraction']:.3f} / {o['second_fraction']:.3f}"

@@ -110,8 +110,10 @@ def preferred(energies, residuals) -> int:
     0
     >>> preferred([0.0052, 0.0066], [0.030, 0.010])
     0
+
+    A NaN counts as infinite (last).
     """
-    energies, residuals = np.asarray(energies, dtype=float), np.asarray(residuals, dtype=float)
+    energies, residuals = (np.nan_to_num(np.asarray(x, dtype=float), nan=np.inf) for x in (energies, residuals))
     best = int(np.argmin(energies))
     tied = np.flatnonzero(energies <= RESIDUAL_TIE * energies[best])
     fit = int(tied[np.argmin(residuals[tied])])

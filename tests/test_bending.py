@@ -296,3 +296,43 @@ def test_an_unbent_pair_keeps_the_rotations_only_e_w():
     step = 1e-5
     difference = (objective.energy(None, h + step * move) - objective.energy(None, h - step * move)) / (2 * step)
     assert difference == pytest.approx(2 * res @ (jac.matrix() @ move.ravel()), rel=1e-4)  # E_w's own slope
+
+
+def _fake_run(symmetry: int, bend_energy: float, residual: float, mirrored: bool = False):
+    """A descended run as :func:`meshreg.bending._unmirrored` reads it (symmetry, E_w, coordinate residual)."""
+    from types import SimpleNamespace
+
+    from meshreg.residual import Residual
+
+    minus = 0.1 * residual if mirrored else 10.0 * residual
+    return SimpleNamespace(symmetry=symmetry, bend_energy=bend_energy, residual=Residual(residual, minus))
+
+
+def test_a_nearly_as_low_symmetry_that_fits_the_points_is_descended_first_and_chosen(monkeypatch):
+    """The choices of register_bending by E_w and the coordinate residual (bending.preferred): the star over the
+    saddle's numbers (the half-turned match at E_w 0.0052 with residual 0.25, the right one 1.27x that with 0.024)."""
+    from meshreg import bending
+
+    ranking = [(1, 0.0052, False, 0.252), (2, 0.0055, True, 0.9), (0, 0.0066, False, 0.024), (5, 0.02, False, 0.01)]
+    monkeypatch.setattr(bending, "symmetry_energies", lambda *args: ranking)
+    _, close, spare = bending._ranked_symmetries(None, None, Options(), None)
+    assert close == [0, 1] and spare == [5]  # the one that fits first; the lowest within 10% of it descended too
+    _, close, spare = bending._ranked_symmetries(None, None, Options(max_starts=1), None)
+    assert close == [0] and spare == [1, 5]
+    runs = {0: _fake_run(0, 0.0040, 0.02), 1: _fake_run(1, 0.0031, 0.25)}
+    chosen, _ = bending._unmirrored([0, 1], [], runs.get)
+    assert chosen.symmetry == 0  # 1.29x the lowest E_w with a twelfth of its residual
+    runs[0] = _fake_run(0, 0.0050, 0.02)  # beyond RESIDUAL_TIE (1.6x): E_w decides
+    assert bending._unmirrored([0, 1], [], runs.get)[0].symmetry == 1
+    runs = {0: _fake_run(0, 0.0040, 0.02), 1: _fake_run(1, 0.0031, 0.05)}  # both fit (below RESIDUAL_FLOOR)
+    assert bending._unmirrored([0, 1], [], runs.get)[0].symmetry == 1
+    runs = {0: _fake_run(0, 0.0040, 0.02, mirrored=True), 1: _fake_run(1, 0.0031, 0.25)}  # a mirrored run never wins
+    assert bending._unmirrored([0, 1], [], runs.get)[0].symmetry == 1
+
+
+def test_preferred_takes_nan_as_the_worst():
+    from meshreg.bending import preferred
+
+    assert preferred([np.nan, 1.0], [0.2, 0.3]) == 1
+    assert preferred([1.0, np.nan], [0.3, 0.01]) == 0
+    assert preferred([1.0, 1.2], [np.nan, 0.01]) == 1  # a NaN residual counts as not fitting at all

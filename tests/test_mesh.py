@@ -143,6 +143,7 @@ def test_four_clear_turns_on_one_mesh_only_are_not_its_corners(bitten_disk):
     assert angle_between(mr.result.rotation, turn) < 1.0 and np.median(error) < 0.005
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [4, 6])
 def test_a_nearly_symmetric_round_pair_is_not_matched_half_turned(star_saddle, seed):
     """Held out 2026-12-02: a saddle over a five-lobed star, remeshed (1,500 and 4,000 vertices), turned and scaled

@@ -76,15 +76,22 @@ def own_start(hmap: HarmonicMap) -> float:
 
 
 def _lowest(rank, starts: np.ndarray, step: float, best=None) -> list[tuple[float, object]]:
-    """(start mod 1, rank) of every start tried: ``starts``, then PLACEMENT_HALVINGS pairs of steps around the
-    best so far, from ``step`` / 2 and halving. ``best(ranks)``: the index of the best of a list of ranks (default:
-    the lowest)."""
-    best = best or (lambda ranks: int(np.argmin(ranks)))
+    """(start mod 1, rank) of every start tried: ``starts``, then :func:`_halvings` around the best so far.
+    ``best(ranks)``: the index of the best of a list of ranks (default: the lowest)."""
     tried = [(float(start) % 1.0, rank(start)) for start in starts]
+    return tried + _halvings(rank, tried, step, best)
+
+
+def _halvings(rank, tried: list, step: float, best=None) -> list[tuple[float, object]]:
+    """(start mod 1, rank) of PLACEMENT_HALVINGS pairs of steps, from ``step`` / 2 and halving, each pair around
+    the best start of ``tried`` (start, rank) and the steps before it (``best`` as for :func:`_lowest`)."""
+    best = best or (lambda ranks: int(np.argmin(ranks)))
+    tried, steps = list(tried), []
     for _ in range(PLACEMENT_HALVINGS):
         centre, step = tried[best([r for _, r in tried])][0], step / 2
-        tried += [((centre + d) % 1.0, rank(centre + d)) for d in (-step, step)]
-    return tried
+        steps += [((centre + d) % 1.0, rank(centre + d)) for d in (-step, step)]
+        tried += steps[-2:]
+    return steps
 
 
 def placement_corners(hmap: HarmonicMap, trials: int) -> list[np.ndarray]:
@@ -120,7 +127,7 @@ def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Op
     -------
     positions : list of two ndarray (4,)
     tried : list or None
-        The (start, rank) pairs of the second's placements tried (None without a search).
+        The (start, E_w) pairs of the second's placements tried (None without a search).
     symmetry : int or None
         With corners given for both meshes, the symmetry of the square that matches corner k of the first with
         corner k of the second: the identity, or the diagonal one when one mesh's corners were given along its
@@ -156,13 +163,16 @@ def search_corners(
     ``symmetry``), then PLACEMENT_HALVINGS halving steps around the best, each ranked by E_w over the symmetries of
     the square at h = the symmetry, mirrored matches aside (:func:`meshreg.bending.symmetry_energies`, windows of
     ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids): the lowest, unless one nearly as low
-    fits the points far better (:func:`meshreg.bending.preferred`, which also picks the best placement).
+    fits the points far better (:func:`meshreg.bending.preferred`, which also picks the best placement). A trial
+    placement that fits the points far better than the best trial (:func:`_fitting`) gets PLACEMENT_HALVINGS halving
+    steps of its own: the right placement's minimum of E_w can be narrower than the trials' spacing.
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
     different places, and no reparametrization that keeps the corners can undo that. This finds them; E_w
     compares normals under rotations that vary over the square, so a bent copy is placed like an unbent one.
 
-    Returns the second's corner loop positions (4,) and the (start, E_w) pairs tried.
+    Returns the second's corner loop positions (4,) and the (start, E_w) pairs tried (E_w of each placement's
+    preferred symmetry; the chosen placement need not have the lowest).
     """
     n, trials = CHOICE_GRID, options.corner_search
     symmetries = tried_symmetries(options.search and options.symmetries, options.keep_orientation, options.symmetry)
@@ -180,20 +190,20 @@ def search_corners(
     tried = _lowest(rank, placement_starts(disk2, count, span, own_start(second)), 0.25 / trials, _best)
     fitting = _fitting(tried[:count])
     if fitting is not None:  # a narrow minimum of E_w between the trials, where the points fit: refined too
-        tried += _lowest(rank, [fitting], 0.25 / trials, _best)[1:]
+        tried += _halvings(rank, [fitting], 0.25 / trials, _best)
     best = tried[_best([r for _, r in tried])][0]
     return quarter_corners(disk2, best % 1.0), [(start, float(e)) for start, (e, _) in tried]
 
 
-def _fitting(tried: list[tuple[float, tuple[float, float]]]) -> float | None:
-    """The start, among ``tried`` (start, (E_w, residual)), that fits the points best when the best start's
+def _fitting(tried: list[tuple[float, tuple[float, float]]]) -> tuple[float, tuple[float, float]] | None:
+    """The entry (start, (E_w, residual)) of ``tried`` that fits the points best when the best start's
     (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR, its own is below RESIDUAL_GAIN times that and
     its E_w within FITTING_REACH times the best's; else None."""
     ranks = np.array([r for _, r in tried])
-    energy, residual = ranks[_best(list(map(tuple, ranks)))]
+    energy, residual = ranks[_best([r for _, r in tried])]
     near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < RESIDUAL_GAIN * residual)
     near &= residual >= RESIDUAL_FLOOR
-    return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))][0] if near.any() else None
+    return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))] if near.any() else None
 
 
 def _best(ranks: list[tuple[float, float]]) -> int:
