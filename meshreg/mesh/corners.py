@@ -86,12 +86,11 @@ def _halvings(rank, tried: list, step: float, best=None) -> list[tuple[float, ob
     """(start mod 1, rank) of PLACEMENT_HALVINGS pairs of steps, from ``step`` / 2 and halving, each pair around
     the best start of ``tried`` (start, rank) and the steps before it (``best`` as for :func:`_lowest`)."""
     best = best or (lambda ranks: int(np.argmin(ranks)))
-    tried, steps = list(tried), []
+    tried, given = list(tried), len(tried)
     for _ in range(PLACEMENT_HALVINGS):
         centre, step = tried[best([r for _, r in tried])][0], step / 2
-        steps += [((centre + d) % 1.0, rank(centre + d)) for d in (-step, step)]
-        tried += steps[-2:]
-    return steps
+        tried += [((centre + d) % 1.0, rank(centre + d)) for d in (-step, step)]
+    return tried[given:]
 
 
 def placement_corners(hmap: HarmonicMap, trials: int) -> list[np.ndarray]:
