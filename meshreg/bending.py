@@ -48,11 +48,13 @@ CHOICE_GRID = 41  # nodes per axis of the coarse grids on which symmetries and c
 CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction of the best are descended too
 # E_w alone can prefer a wrong match of a nearly symmetric pair: a five-lobed star over a saddle, remeshed, turned and
 # scaled, had its half-turned match (lobes on notches, coordinate residual 0.24-0.28) rank first at E_w 0.0052-0.0057,
-# the right one (residual 0.021-0.027) 1.27-1.28 times that. Among matches within RESIDUAL_TIE times the lowest E_w,
-# one whose coordinate residual is below RESIDUAL_GAIN times the lowest's is preferred (:func:`preferred`), when the
-# lowest's is at least RESIDUAL_FLOOR (area-1 length: it does not fit the points; right matches of the star measured
-# 0.012-0.027, and on pairs whose every placement fits, a lower residual came with a higher E: 0.00035 -> 0.00106)
-RESIDUAL_TIE = 1.5
+# the right one (residual 0.021-0.027) 1.27-1.28 times that; in another remeshing (1,500 and 3,000 vertices, scaled
+# 1.5x) 1.7-2.2 times (residuals 0.057-0.060 against 0.25-0.28). Among matches within RESIDUAL_TIE times the lowest
+# E_w, one whose coordinate residual is below RESIDUAL_GAIN times the lowest's is preferred (:func:`preferred`), when
+# the lowest's is at least RESIDUAL_FLOOR (area-1 length: it does not fit the points; right matches of the star
+# measured 0.012-0.060, and on pairs whose every placement fits, a lower residual came with a higher E: 0.00035 ->
+# 0.00106). Rolled and folded sheets (residuals alike for every match) are not affected by the tie of 3 (1.5 before)
+RESIDUAL_TIE = 3.0
 RESIDUAL_GAIN = 0.5
 RESIDUAL_FLOOR = 0.1
 # a twin of the answer (a symmetry of either surface applied to it) is refined only when its residual as it stands

@@ -278,7 +278,7 @@ def rank_placement(first: GridSurface, placements: list, options: Options) -> di
     from .mesh.corners import best_placement
 
     with threadpool_limits(1):
-        return {"placement": best_placement(first, placements, options.keep_orientation)}
+        return {"placement": best_placement(first, placements, options)[0][0]}
 
 
 def _medoid(members, options, settings: AtlasSettings, key: str, run: dict, store, notify) -> tuple[int, GridSurface]:

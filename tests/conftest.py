@@ -54,15 +54,23 @@ def _bitten_disk(points: int, seed: int):
     return np.c_[uv, z], faces, uv
 
 
-def _star_saddle(points: int, seed: int):
-    """The saddle z = 0.4 (x^2 - y^2) over a five-lobed star r = 1 + 0.25 cos 5t (:func:`_outlined_mesh`); vertices
-    (n, 3), faces, (u, v). Turned by half a turn the saddle is the same and the star puts lobes on notches."""
+def _lobed(points: int, seed: int, lobes: int = 5, depth: float = 0.25, phase: float = 0.0, relief=None, box=1.25):
+    """A relief z = ``relief``(x, y) (default the saddle 0.4 (x^2 - y^2)) over the lobed rim
+    r = 1 + ``depth`` cos(``lobes`` t + ``phase``) (:func:`_outlined_mesh`, random points in [-box, box]^2);
+    vertices (n, 3), faces, (u, v)."""
     turn = np.linspace(0, 2 * np.pi, 3000, endpoint=False)
-    radius = 1 + 0.25 * np.cos(5 * turn)
+    radius = 1 + depth * np.cos(lobes * turn + phase)
     rim = np.c_[radius * np.cos(turn), radius * np.sin(turn)]
     area = 0.5 * abs(np.sum(rim[:, 0] * np.roll(rim[:, 1], -1) - np.roll(rim[:, 0], -1) * rim[:, 1]))
-    uv, faces = _outlined_mesh(rim, area, points, seed, box=1.25)
-    return np.c_[uv, 0.4 * (uv[:, 0] ** 2 - uv[:, 1] ** 2)], faces, uv
+    uv, faces = _outlined_mesh(rim, area, points, seed, box=box)
+    z = 0.4 * (uv[:, 0] ** 2 - uv[:, 1] ** 2) if relief is None else relief(uv[:, 0], uv[:, 1])
+    return np.c_[uv, z], faces, uv
+
+
+def _star_saddle(points: int, seed: int):
+    """The saddle z = 0.4 (x^2 - y^2) over a five-lobed star r = 1 + 0.25 cos 5t (:func:`_lobed`); vertices
+    (n, 3), faces, (u, v). Turned by half a turn the saddle is the same and the star puts lobes on notches."""
+    return _lobed(points, seed)
 
 
 @pytest.fixture
@@ -70,6 +78,12 @@ def bitten_disk():
     """:func:`_bitten_disk`: a relief over the unit disk with a square bite out of its rim (four clear turns bunched
     in a tenth of the rim at low resolution, none at high)."""
     return _bitten_disk
+
+
+@pytest.fixture
+def lobed():
+    """:func:`_lobed`: a relief over a lobed rim."""
+    return _lobed
 
 
 @pytest.fixture

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bending import CHOICE_GRID, RESIDUAL_FLOOR, RESIDUAL_GAIN, preferred, symmetry_energies
+from ..bending import CHOICE_GRID, RESIDUAL_FLOOR, coarse, preferred, symmetry_energies
 from ..errors import InputError
 from ..grid import GridSurface
 from ..options import Options
-from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, best_start, tried_symmetries
+from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, tried_symmetries
 from .harmonic import (
     HarmonicMap,
     arc_fraction,
@@ -28,11 +28,12 @@ from .harmonic import (
 from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk, triangle_areas
 
-CORNER_SEARCH_GRID = 21  # coarse grid on which :func:`best_placement` ranks the trial placements (by coarse DP)
-# a trial placement whose E_w is within this factor of the best trial's, but whose coordinate residual is below
-# RESIDUAL_GAIN times the best's, may sit beside a narrow minimum the trials stepped over: it is refined too (the
-# five-lobed star over a saddle: E_w 2.2 times the best, residual 0.052 against 0.256, and 0.015 of the boundary
-# from a placement at 1.28 times the best E_w with residual 0.027, the right one)
+# when the best trial placement does not fit the points (residual at least RESIDUAL_FLOOR), the trial within this
+# factor of its E_w that fits them best (a lower coordinate residual) may sit beside a narrow minimum the trials
+# stepped over: it is refined too (the five-lobed star over a saddle: E_w 2.2 times the best, residual 0.052 against
+# 0.256, and 0.015 of the boundary from a placement at 1.28 times the best E_w with residual 0.027, the right one; a
+# four-lobed rim under a cubic: 1.36 times the best, residual 0.085 against 0.112, refined to E_w 0.0051 and residual
+# 0.022 against the half-turned match's 0.0043 and 0.19)
 FITTING_REACH = 3.0
 PLACEMENT_HALVINGS = 4  # halving steps around the best trial: the pair's corner search, a round boundary's own start
 OWN_TRIALS = 8  # trial starts of a round boundary's own corner placement, over a quarter of it (:func:`own_start`)
@@ -100,21 +101,31 @@ def placement_corners(hmap: HarmonicMap, trials: int) -> list[np.ndarray]:
     return [quarter_corners(disk, start % 1.0) for start in placement_starts(disk, trials, start=own_start(hmap))]
 
 
-def placement_energy(coarse1, coarse2, keep_orientation: bool = False) -> float:
-    """Rank of a corner placement: the best coarse DP energy over the square's symmetries (those that keep
-    orientation with ``keep_orientation``) and rotations, of a match that is not mirrored
-    (:func:`meshreg.search.best_start`)."""
-    starts = best_start(coarse1, coarse2, keep_orientation=keep_orientation)
-    return next((s.energy for s in starts if not s.mirrored), float("inf"))
+def placement_rank(coarse1: GridSurface, grid: GridSurface, window: float, symmetries) -> tuple[float, float, int]:
+    """(E_w, coordinate residual, symmetry) of one corner placement of the second surface, ``grid``, against the
+    first's ``coarse1``: its preferred symmetry of the square (:func:`_best` of
+    :func:`meshreg.bending.symmetry_energies` over ``symmetries`` at h = the symmetry, windows of ``window``),
+    mirrored matches aside, with its E_w and residual; (inf, inf, 0) when every match is mirrored (ranked last)."""
+    fair = [(e, r, k) for k, e, mirrored, r in symmetry_energies(coarse1, grid, window, symmetries) if not mirrored]
+    return fair[_best(fair)] if fair else (np.inf, np.inf, 0)
 
 
-def best_placement(first: GridSurface, placements: list[GridSurface], keep_orientation: bool = False) -> int:
-    """Index of the second surface's corner placement (each a grid) that matches ``first`` best, by
-    :func:`placement_energy` on CORNER_SEARCH_GRID x CORNER_SEARCH_GRID grids."""
-    n = CORNER_SEARCH_GRID
-    coarse = first.scaled().resampled(n, n)
-    energies = [placement_energy(coarse, g.scaled().resampled(n, n), keep_orientation) for g in placements]
-    return int(np.argmin(energies))
+def best_placement(first: GridSurface, placements: list[GridSurface], options: Options) -> list[tuple[int, int]]:
+    """The second surface's corner placements (each a grid) ranked against ``first`` as :func:`search_corners`
+    ranks its trials (:func:`placement_rank`, with the symmetries and choice window of ``options``): (placement
+    index, its preferred symmetry of the square) of the best (:func:`_best`), then of a placement that fits the
+    points better than it (:func:`_fitting`), if there is one.
+
+    A collection's placements are fixed trials, with no halving steps between them, and its pairs are registered by
+    E, which cannot see that a match fits the normals but not the points: the caller may need the second entry and
+    the symmetries (:func:`meshreg.batch.registered_pair`)."""
+    symmetries = tried_symmetries(options.search and options.symmetries, options.keep_orientation, options.symmetry)
+    coarse1 = coarse(first)
+    ranks = [placement_rank(coarse1, g, options.advanced.choice_window, symmetries) for g in placements]
+    best = _best(ranks)
+    fitting = _fitting(list(enumerate(ranks)))
+    found = [best] + ([] if fitting is None else [fitting[0]])
+    return [(k, int(ranks[k][2])) for k in found]
 
 
 def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options):
@@ -162,9 +173,10 @@ def search_corners(
     ``symmetry``), then PLACEMENT_HALVINGS halving steps around the best, each ranked by E_w over the symmetries of
     the square at h = the symmetry, mirrored matches aside (:func:`meshreg.bending.symmetry_energies`, windows of
     ``options.advanced.choice_window``, on CHOICE_GRID x CHOICE_GRID grids): the lowest, unless one nearly as low
-    fits the points far better (:func:`meshreg.bending.preferred`, which also picks the best placement). A trial
-    placement that fits the points far better than the best trial (:func:`_fitting`) gets PLACEMENT_HALVINGS halving
-    steps of its own: the right placement's minimum of E_w can be narrower than the trials' spacing.
+    fits the points far better (:func:`meshreg.bending.preferred`, which also picks the best placement). When the
+    best trial does not fit the points, the trial that fits them best within reach (:func:`_fitting`) gets
+    PLACEMENT_HALVINGS halving steps of its own: the right placement's minimum of E_w can be narrower than the
+    trials' spacing.
 
     A smooth boundary (a round crop) has no natural corners: two meshes of one surface get corners at
     different places, and no reparametrization that keeps the corners can undo that. This finds them; E_w
@@ -182,8 +194,7 @@ def search_corners(
 
     def rank(start):
         grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n, aa)
-        fair = [(e, r) for _, e, mirrored, r in symmetry_energies(coarse1, grid, window, symmetries) if not mirrored]
-        return fair[_best(fair)] if fair else (np.inf, np.inf)  # only mirrored matches: last
+        return placement_rank(coarse1, grid, window, symmetries)
 
     count = round(trials * span / 0.25)  # the same spacing, 1 / (4 trials) of the boundary, over the span
     tried = _lowest(rank, placement_starts(disk2, count, span, own_start(second)), 0.25 / trials, _best)
@@ -191,23 +202,23 @@ def search_corners(
     if fitting is not None:  # a narrow minimum of E_w between the trials, where the points fit: refined too
         tried += _halvings(rank, [fitting], 0.25 / trials, _best)
     best = tried[_best([r for _, r in tried])][0]
-    return quarter_corners(disk2, best % 1.0), [(start, float(e)) for start, (e, _) in tried]
+    return quarter_corners(disk2, best % 1.0), [(start, float(rank[0])) for start, rank in tried]
 
 
-def _fitting(tried: list[tuple[float, tuple[float, float]]]) -> tuple[float, tuple[float, float]] | None:
-    """The entry (start, (E_w, residual)) of ``tried`` that fits the points best when the best start's
-    (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR, its own is below RESIDUAL_GAIN times that and
-    its E_w within FITTING_REACH times the best's; else None."""
-    ranks = np.array([r for _, r in tried])
-    energy, residual = ranks[_best([r for _, r in tried])]
-    near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < RESIDUAL_GAIN * residual)
+def _fitting(tried: list[tuple[float, tuple]]) -> tuple[float, tuple] | None:
+    """The entry (start, (E_w, residual, ...)) of ``tried`` that fits the points best when the best start's
+    (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR, its own is below that and its E_w within
+    FITTING_REACH times the best's; else None."""
+    ranks = np.array([r[:2] for _, r in tried])
+    energy, residual = ranks[_best(ranks)]
+    near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < residual)
     near &= residual >= RESIDUAL_FLOOR
     return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))] if near.any() else None
 
 
-def _best(ranks: list[tuple[float, float]]) -> int:
-    """Index of the best of (E_w, coordinate residual) ranks: :func:`meshreg.bending.preferred`."""
-    return preferred([e for e, _ in ranks], [r for _, r in ranks])
+def _best(ranks: list[tuple]) -> int:
+    """Index of the best of (E_w, coordinate residual, ...) ranks: :func:`meshreg.bending.preferred`."""
+    return preferred([r[0] for r in ranks], [r[1] for r in ranks])
 
 
 def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options, arcs: bool = False):
@@ -217,7 +228,7 @@ def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options, arcs: 
     With four clear corners (or ``options.corner_search=0``), one grid (corners by
     :func:`~meshreg.mesh.harmonic.choose_corners`); else one grid per trial corner placement of
     :func:`placement_starts` (one LU serves them all), the first of which is the mesh's own placement when
-    it is the first surface of a pair; a pair ranks the second's placements by :func:`placement_energy`. With
+    it is the first surface of a pair; a pair ranks the second's placements by :func:`best_placement`. With
     ``arcs``, a mesh with four clear corners has the grids of its trial placements after its corner grid (a
     collection with round-boundary meshes places it like them in their pairs).
 
