@@ -106,7 +106,7 @@ def preferred(energies, residuals) -> int:
     the points with a residual below RESIDUAL_GAIN times the lowest's; then the lowest residual among those within
     RESIDUAL_TIE.
 
-    >>> preferred([0.0052, 0.0066, 0.0100], [0.252, 0.024, 0.001])
+    >>> preferred([0.0052, 0.0066, 0.0200], [0.252, 0.024, 0.001])
     1
     >>> preferred([0.0052, 0.0066], [0.252, 0.200])
     0

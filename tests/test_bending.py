@@ -322,7 +322,7 @@ def test_a_nearly_as_low_symmetry_that_fits_the_points_is_descended_first_and_ch
     runs = {0: _fake_run(0, 0.0040, 0.02), 1: _fake_run(1, 0.0031, 0.25)}
     chosen, _ = bending._unmirrored([0, 1], [], runs.get)
     assert chosen.symmetry == 0  # 1.29x the lowest E_w with a twelfth of its residual
-    runs[0] = _fake_run(0, 0.0050, 0.02)  # beyond RESIDUAL_TIE (1.6x): E_w decides
+    runs[0] = _fake_run(0, 0.0100, 0.02)  # beyond RESIDUAL_TIE (3.2x): E_w decides
     assert bending._unmirrored([0, 1], [], runs.get)[0].symmetry == 1
     runs = {0: _fake_run(0, 0.0040, 0.02), 1: _fake_run(1, 0.0031, 0.05)}  # both fit (below RESIDUAL_FLOOR)
     assert bending._unmirrored([0, 1], [], runs.get)[0].symmetry == 1
