@@ -151,9 +151,9 @@ def _placed(first: GridSurface, placements: list, options: Options) -> tuple[Reg
     points: a saddle over a five-lobed star against a remeshed copy came out half-turned (E 0.0004-0.004, coordinate
     residual 0.25-0.26) from placements whose preferred symmetry at the coarse look was the right one. When the
     answer does not fit the points (residual at least RESIDUAL_FLOOR), the best placement under its preferred
-    symmetry, then a placement that fits them better at the coarse look, are registered with that symmetry pinned,
-    and the first whose answer fits the points (residual at most :data:`meshreg.choice.NORMALS_ONLY_RESIDUAL`)
-    replaces it."""
+    symmetry, then a placement that fits them better, each only if its match fits them at the coarse look (residual
+    below RESIDUAL_FLOOR), are registered with that symmetry pinned, and the first whose answer fits the points
+    (residual at most :data:`meshreg.choice.NORMALS_ONLY_RESIDUAL`) replaces it."""
     from .bending import RESIDUAL_FLOOR
     from .choice import NORMALS_ONLY_RESIDUAL
     from .mesh.corners import best_placement
@@ -163,8 +163,8 @@ def _placed(first: GridSurface, placements: list, options: Options) -> tuple[Reg
     result = register_with(first, placements[chosen], options)
     if result.residual < RESIDUAL_FLOOR or options.symmetry is not None:
         return result, chosen
-    for k, symmetry in ranked:
-        if (k, symmetry) != (chosen, result.symmetry):
+    for k, symmetry, coarse_residual in ranked:
+        if coarse_residual < RESIDUAL_FLOOR and (k, symmetry) != (chosen, result.symmetry):
             other = register_with(first, placements[k], options.replace(symmetry=symmetry))
             if other.residual <= NORMALS_ONLY_RESIDUAL:
                 return other, k

@@ -50,10 +50,11 @@ CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction
 # scaled, had its half-turned match (lobes on notches, coordinate residual 0.24-0.28) rank first at E_w 0.0052-0.0057,
 # the right one (residual 0.021-0.027) 1.27-1.28 times that; in another remeshing (1,500 and 3,000 vertices, scaled
 # 1.5x) 1.7-2.2 times (residuals 0.057-0.060 against 0.25-0.28). Among matches within RESIDUAL_TIE times the lowest
-# E_w, one whose coordinate residual is below RESIDUAL_GAIN times the lowest's is preferred (:func:`preferred`), when
-# the lowest's is at least RESIDUAL_FLOOR (area-1 length: it does not fit the points; right matches of the star
-# measured 0.012-0.060, and on pairs whose every placement fits, a lower residual came with a higher E: 0.00035 ->
-# 0.00106). Rolled and folded sheets (residuals alike for every match) are not affected by the tie of 3 (1.5 before)
+# E_w, one that fits the points (coordinate residual below RESIDUAL_FLOOR, an area-1 length, and below RESIDUAL_GAIN
+# times the lowest's) is preferred (:func:`preferred`) when the lowest does not (right matches of the star measured
+# 0.012-0.060; on pairs whose every placement fits, a lower residual came with a higher E: 0.00035 -> 0.00106). A
+# sheet rolled half a turn has no match that fits: the right one measured 0.66, a wrong symmetry 0.13 at 1.24 times
+# its E_w, and without the bound of RESIDUAL_FLOOR on the winner the tie of 3 (1.5 before) chose the wrong one
 RESIDUAL_TIE = 3.0
 RESIDUAL_GAIN = 0.5
 RESIDUAL_FLOOR = 0.1
@@ -102,15 +103,17 @@ def symmetry_energies(
 
 def preferred(energies, residuals) -> int:
     """Index of the preferred match among matches with ``energies`` (E_w, (m,)) and coordinate ``residuals`` (m,):
-    the lowest E_w, unless its residual is at least RESIDUAL_FLOOR and a match within RESIDUAL_TIE times it fits
-    the points with a residual below RESIDUAL_GAIN times the lowest's; then the lowest residual among those within
-    RESIDUAL_TIE.
+    the lowest E_w, unless it does not fit the points (residual at least RESIDUAL_FLOOR) and a match within
+    RESIDUAL_TIE times its E_w does (residual below RESIDUAL_FLOOR and below RESIDUAL_GAIN times the lowest's); then
+    the lowest residual among those within RESIDUAL_TIE.
 
     >>> preferred([0.0052, 0.0066, 0.0200], [0.252, 0.024, 0.001])
     1
     >>> preferred([0.0052, 0.0066], [0.252, 0.200])
     0
     >>> preferred([0.0052, 0.0066], [0.030, 0.010])
+    0
+    >>> preferred([0.0655, 0.0813], [0.663, 0.132])  # a sheet rolled half a turn: neither fits the points
     0
 
     A NaN counts as infinite (last).
@@ -119,7 +122,8 @@ def preferred(energies, residuals) -> int:
     best = int(np.argmin(energies))
     tied = np.flatnonzero(energies <= RESIDUAL_TIE * energies[best])
     fit = int(tied[np.argmin(residuals[tied])])
-    return fit if residuals[best] >= RESIDUAL_FLOOR and residuals[fit] < RESIDUAL_GAIN * residuals[best] else best
+    fits = residuals[fit] < min(RESIDUAL_FLOOR, RESIDUAL_GAIN * residuals[best])
+    return fit if residuals[best] >= RESIDUAL_FLOOR and fits else best
 
 
 def descent_window(first: GridSurface, bend_window: float) -> float:

@@ -239,3 +239,30 @@ def test_a_nearly_symmetric_round_pair_in_a_matrix_is_not_half_turned(star_saddl
     turn = Rotation.random(random_state=seed).as_matrix()
     d = distance_matrix([(v1, f1), (2.0 * v2 @ turn.T + [0.3, -1.0, 0.5], f2)], Options(resolution=61), jobs=1)
     assert angle_between(d.rotations[0, 1], turn) < 2.0 and d.residual[0, 1] < 0.05 and d.energy[0, 1] < 0.005
+
+
+def test_a_pair_that_does_not_fit_the_points_is_registered_again_only_from_matches_that_fit(monkeypatch):
+    """batch._placed with fake rankings and registrations: a candidate is registered again only when the answer does
+    not fit the points (residual >= 0.1) and the candidate's coarse match does (< 0.1), and replaces the answer only
+    when its own answer fits them (<= 0.05)."""
+    from types import SimpleNamespace
+
+    import meshreg.mesh.corners
+    from meshreg import batch
+
+    calls = []
+
+    def fake_register(first, grid, options):
+        calls.append((grid, options.symmetry))
+        return SimpleNamespace(residual=answers[(grid, options.symmetry)], symmetry=4)
+
+    monkeypatch.setattr(batch, "register_with", fake_register)
+    ranked = [(0, 0, 0.06), (2, 5, 0.12)]  # the best placement's preferred symmetry fits; the other does not
+    monkeypatch.setattr(meshreg.mesh.corners, "best_placement", lambda *args: ranked)
+    answers = {(0, None): 0.26, (0, 0): 0.02, (2, 5): 0.01}
+    result, k = batch._placed(None, [0, 1, 2], Options())
+    assert (k, result.residual) == (0, 0.02) and calls == [(0, None), (0, 0)]
+    answers[(0, 0)], calls[:] = 0.2, []  # registered again but not fitting: the first answer stays
+    assert batch._placed(None, [0, 1, 2], Options())[0].residual == 0.26 and calls == [(0, None), (0, 0)]
+    answers[(0, None)], calls[:] = 0.05, []  # the answer fits: nothing more
+    assert batch._placed(None, [0, 1, 2], Options())[1] == 0 and calls == [(0, None)]

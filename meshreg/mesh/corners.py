@@ -110,11 +110,11 @@ def placement_rank(coarse1: GridSurface, grid: GridSurface, window: float, symme
     return fair[_best(fair)] if fair else (np.inf, np.inf, 0)
 
 
-def best_placement(first: GridSurface, placements: list[GridSurface], options: Options) -> list[tuple[int, int]]:
+def best_placement(first: GridSurface, placements: list[GridSurface], options: Options) -> list[tuple[int, int, float]]:
     """The second surface's corner placements (each a grid) ranked against ``first`` as :func:`search_corners`
     ranks its trials (:func:`placement_rank`, with the symmetries and choice window of ``options``): (placement
-    index, its preferred symmetry of the square) of the best (:func:`_best`), then of a placement that fits the
-    points better than it (:func:`_fitting`), if there is one.
+    index, its preferred symmetry of the square, that match's coordinate residual) of the best (:func:`_best`), then
+    of a placement that fits the points better than it (:func:`_fitting`), if there is one.
 
     A collection's placements are fixed trials, with no halving steps between them, and its pairs are registered by
     E, which cannot see that a match fits the normals but not the points: the caller may need the second entry and
@@ -125,7 +125,7 @@ def best_placement(first: GridSurface, placements: list[GridSurface], options: O
     best = _best(ranks)
     fitting = _fitting(list(enumerate(ranks)))
     found = [best] + ([] if fitting is None else [fitting[0]])
-    return [(k, int(ranks[k][2])) for k in found]
+    return [(k, int(ranks[k][2]), float(ranks[k][1])) for k in found]
 
 
 def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options):
