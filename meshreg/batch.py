@@ -161,7 +161,7 @@ def _placed(first: GridSurface, placements: list, options: Options) -> tuple[Reg
     ranked = best_placement(first, placements, options)
     chosen = ranked[0][0]
     result = register_with(first, placements[chosen], options)
-    if result.residual < RESIDUAL_FLOOR or options.symmetry is not None:
+    if result.residual < RESIDUAL_FLOOR:
         return result, chosen
     for k, symmetry, coarse_residual in ranked:
         if coarse_residual < RESIDUAL_FLOOR and (k, symmetry) != (chosen, result.symmetry):
