@@ -29,11 +29,11 @@ from .resample import resample_grid
 from .topology import DiskMesh, prepare_disk, triangle_areas
 
 # when the best trial placement does not fit the points (residual at least RESIDUAL_FLOOR), the trial within this
-# factor of its E_w that fits them best (a lower coordinate residual) may sit beside a narrow minimum the trials
-# stepped over: it is refined too (the five-lobed star over a saddle: E_w 2.2 times the best, residual 0.052 against
-# 0.256, and 0.015 of the boundary from a placement at 1.28 times the best E_w with residual 0.027, the right one; a
-# four-lobed rim under a cubic: 1.36 times the best, residual 0.085 against 0.112, refined to E_w 0.0051 and residual
-# 0.022 against the half-turned match's 0.0043 and 0.19)
+# factor of its E_w that fits them best (coordinate residual below RESIDUAL_FLOOR) may sit beside a narrow minimum
+# the trials stepped over: it is refined too (the five-lobed star over a saddle: E_w 2.2 times the best, residual
+# 0.052 against 0.256, and 0.015 of the boundary from a placement at 1.28 times the best E_w with residual 0.027, the
+# right one; a four-lobed rim under a cubic: 1.36 times the best, residual 0.085 against 0.112, refined to E_w 0.0051
+# and residual 0.022 against the half-turned match's 0.0043 and 0.19)
 FITTING_REACH = 3.0
 PLACEMENT_HALVINGS = 4  # halving steps around the best trial: the pair's corner search, a round boundary's own start
 OWN_TRIALS = 8  # trial starts of a round boundary's own corner placement, over a quarter of it (:func:`own_start`)
@@ -207,11 +207,11 @@ def search_corners(
 
 def _fitting(tried: list[tuple[float, tuple]]) -> tuple[float, tuple] | None:
     """The entry (start, (E_w, residual, ...)) of ``tried`` that fits the points best when the best start's
-    (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR, its own is below that and its E_w within
-    FITTING_REACH times the best's; else None."""
+    (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR (it does not fit the points), its own is below
+    RESIDUAL_FLOOR (it does) and its E_w within FITTING_REACH times the best's; else None."""
     ranks = np.array([r[:2] for _, r in tried])
     energy, residual = ranks[_best(ranks)]
-    near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < residual)
+    near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < min(residual, RESIDUAL_FLOOR))
     near &= residual >= RESIDUAL_FLOOR
     return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))] if near.any() else None
 
