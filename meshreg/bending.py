@@ -198,12 +198,17 @@ def register_bending(
     return _registration(chosen, first, second, options, params, timings, alternatives)
 
 
+def choice_symmetries(options: Options, symmetry: int | None) -> tuple[int, ...]:
+    """The symmetries of the square that the E_w rankings try (:func:`meshreg.search.tried_symmetries`): the pinned
+    ``symmetry``, else those of ``options`` (none but the identity with ``search`` or ``symmetries`` off)."""
+    return tried_symmetries(options.search and options.symmetries, options.keep_orientation, symmetry)
+
+
 def _ranked_symmetries(first: GridSurface, second: GridSurface, options: Options, symmetry: int | None):
     """The symmetries of the square tried, ranked by E_w at h = each (:func:`symmetry_energies`), the ones within
     CHOICE_MARGIN of the :func:`preferred` unmirrored one (at most ``options.max_starts``: descended first, the
     preferred one first) and the other unmirrored ones (spares, best first)."""
-    tried = tried_symmetries(options.search and options.symmetries, options.keep_orientation, symmetry)
-    ranked = symmetry_energies(first, second, options.advanced.choice_window, tried)
+    ranked = symmetry_energies(first, second, options.advanced.choice_window, choice_symmetries(options, symmetry))
     fair = [(k, e, r) for k, e, mirrored, r in ranked if not mirrored]
     if not fair:
         raise every_start_mirrored(symmetry)

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bending import CHOICE_GRID, RESIDUAL_FLOOR, coarse, preferred, symmetry_energies
+from ..bending import CHOICE_GRID, RESIDUAL_FLOOR, choice_symmetries, coarse, preferred, symmetry_energies
 from ..errors import InputError
 from ..grid import GridSurface
 from ..options import Options
-from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, tried_symmetries
+from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES
 from .harmonic import (
     HarmonicMap,
     arc_fraction,
@@ -119,7 +119,7 @@ def best_placement(first: GridSurface, placements: list[GridSurface], options: O
     A collection's placements are fixed trials, with no halving steps between them, and its pairs are registered by
     E, which cannot see that a match fits the normals but not the points: the caller may need the second entry and
     the symmetries (:func:`meshreg.batch.registered_pair`)."""
-    symmetries = tried_symmetries(options.search and options.symmetries, options.keep_orientation, options.symmetry)
+    symmetries = choice_symmetries(options, options.symmetry)
     coarse1 = coarse(first)
     ranks = [placement_rank(coarse1, g, options.advanced.choice_window, symmetries) for g in placements]
     best = _best(ranks)
@@ -186,7 +186,7 @@ def search_corners(
     preferred symmetry; the chosen placement need not have the lowest).
     """
     n, trials = CHOICE_GRID, options.corner_search
-    symmetries = tried_symmetries(options.search and options.symmetries, options.keep_orientation, options.symmetry)
+    symmetries = choice_symmetries(options, options.symmetry)
     span = 0.25 if set(ORIENTATION_PRESERVING) <= set(symmetries) else 1.0
     window, disk1, disk2 = options.advanced.choice_window, first.disk, second.disk
     aa = options.antialias
@@ -202,7 +202,7 @@ def search_corners(
     if fitting is not None:  # a narrow minimum of E_w between the trials, where the points fit: refined too
         tried += _halvings(rank, [fitting], 0.25 / trials, _best)
     best = tried[_best([r for _, r in tried])][0]
-    return quarter_corners(disk2, best % 1.0), [(start, float(rank[0])) for start, rank in tried]
+    return quarter_corners(disk2, best % 1.0), [(start, float(r[0])) for start, r in tried]
 
 
 def _fitting(tried: list[tuple[float, tuple]]) -> tuple[float, tuple] | None:
@@ -211,8 +211,9 @@ def _fitting(tried: list[tuple[float, tuple]]) -> tuple[float, tuple] | None:
     RESIDUAL_FLOOR (it does) and its E_w within FITTING_REACH times the best's; else None."""
     ranks = np.array([r[:2] for _, r in tried])
     energy, residual = ranks[_best(ranks)]
-    near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < min(residual, RESIDUAL_FLOOR))
-    near &= residual >= RESIDUAL_FLOOR
+    if not residual >= RESIDUAL_FLOOR:  # the best fits the points (or is NaN): nothing to refine
+        return None
+    near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < RESIDUAL_FLOOR)
     return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))] if near.any() else None
 
 
