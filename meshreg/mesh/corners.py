@@ -38,6 +38,10 @@ FITTING_REACH = 3.0
 PLACEMENT_HALVINGS = 4  # halving steps around the best trial: the pair's corner search, a round boundary's own start
 OWN_TRIALS = 8  # trial starts of a round boundary's own corner placement, over a quarter of it (:func:`own_start`)
 SQUEEZE_GAIN = 0.5  # ... which moves off choose_corners' start only to a map squeezing the surface less than this much
+# a chosen placement whose match fits the points within this coordinate residual (area 1) is one surface, nearly
+# unbent: its placement is then moved to where the points fit best (:func:`_snug`)
+SNUG_RESIDUAL = 0.05
+SNUG_HALVINGS = 6  # halving steps of that move, from half the trials' spacing
 SWAP = SQUARE_SYMMETRIES.index((True, False, False))  # (u, v) -> (v, u): corners given each way round
 
 
@@ -83,12 +87,12 @@ def _lowest(rank, starts: np.ndarray, step: float, best=None) -> list[tuple[floa
     return tried + _halvings(rank, tried, step, best)
 
 
-def _halvings(rank, tried: list, step: float, best=None) -> list[tuple[float, object]]:
-    """(start mod 1, rank) of PLACEMENT_HALVINGS pairs of steps, from ``step`` / 2 and halving, each pair around
-    the best start of ``tried`` (start, rank) and the steps before it (``best`` as for :func:`_lowest`)."""
+def _halvings(rank, tried: list, step: float, best=None, count: int = PLACEMENT_HALVINGS) -> list[tuple[float, object]]:
+    """(start mod 1, rank) of ``count`` pairs of steps, from ``step`` / 2 and halving, each pair around the best
+    start of ``tried`` (start, rank) and the steps before it (``best`` as for :func:`_lowest`)."""
     best = best or (lambda ranks: int(np.argmin(ranks)))
     tried, given = list(tried), len(tried)
-    for _ in range(PLACEMENT_HALVINGS):
+    for _ in range(count):
         centre, step = tried[best([r for _, r in tried])][0], step / 2
         tried += [((centre + d) % 1.0, rank(centre + d)) for d in (-step, step)]
     return tried[given:]
@@ -142,6 +146,8 @@ def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Op
         With corners given for both meshes, the symmetry of the square that matches corner k of the first with
         corner k of the second: the identity, or the diagonal one when one mesh's corners were given along its
         boundary and the other's against it (:func:`~meshreg.mesh.harmonic.given_corners`); else None.
+    other : ndarray (4,) or None
+        Another placement of the second's corners to register as well (:func:`search_corners`), or None.
     """
     given = (options.corners1, options.corners2)
     pos, backwards = [], []
@@ -156,17 +162,17 @@ def corner_positions(disks: list[DiskMesh], maps: list[HarmonicMap], options: Op
     symmetry = None if None in backwards else (SWAP if backwards[0] != backwards[1] else 0)
     search = options.corner_search > 0 and given == (None, None) and not all(has_sharp_corners(d) for d in disks)
     if not search:
-        return pos, None, symmetry
+        return pos, None, symmetry, None
     # four clear turns on one mesh only are no corners of the surface (dents of a jagged rim, bunched in a tenth of it):
     # both meshes are placed at quarter arc lengths, which the search can match
     pos[0] = placement_corners(maps[0], 1)[0]
-    pos[1], tried = search_corners(maps[0], pos[0], maps[1], options)
-    return pos, tried, symmetry
+    pos[1], tried, other = search_corners(maps[0], pos[0], maps[1], options)
+    return pos, tried, symmetry, other
 
 
 def search_corners(
     first: HarmonicMap, corners1: np.ndarray, second: HarmonicMap, options: Options
-) -> tuple[np.ndarray, list]:
+) -> tuple[np.ndarray, list, np.ndarray | None]:
     """Corners of the second mesh that best match the first's: the ``options.corner_search`` placements of
     :func:`placement_starts` from the second's own start (:func:`own_start`; four times as many, over the whole
     boundary, when the square's quarter turns are not tried: ``search`` or ``symmetries`` off, or a pinned
@@ -182,8 +188,10 @@ def search_corners(
     different places, and no reparametrization that keeps the corners can undo that. This finds them; E_w
     compares normals under rotations that vary over the square, so a bent copy is placed like an unbent one.
 
-    Returns the second's corner loop positions (4,) and the (start, E_w) pairs tried (E_w of each placement's
-    preferred symmetry; the chosen placement need not have the lowest).
+    Returns the second's corner loop positions (4,), the (start, E_w) pairs tried (E_w of each placement's
+    preferred symmetry; the chosen placement need not have the lowest) and the corners of the placement
+    :func:`_snug` moved it to, where they differ (else None): the caller registers both and keeps the answer
+    :func:`meshreg.bending.preferred` prefers by E and residual (the lower E, unless it alone does not fit the points).
     """
     n, trials = CHOICE_GRID, options.corner_search
     symmetries = choice_symmetries(options, options.symmetry)
@@ -192,17 +200,44 @@ def search_corners(
     aa = options.antialias
     coarse1 = resample_grid(disk1.vertices, disk1.faces, first(corners1)[0], n, n, aa)
 
-    def rank(start):
+    def rank(start, among=symmetries):
         grid = resample_grid(disk2.vertices, disk2.faces, second(quarter_corners(disk2, start % 1.0))[0], n, n, aa)
-        return placement_rank(coarse1, grid, window, symmetries)
+        return placement_rank(coarse1, grid, window, among)
 
     count = round(trials * span / 0.25)  # the same spacing, 1 / (4 trials) of the boundary, over the span
     tried = _lowest(rank, placement_starts(disk2, count, span, own_start(second)), 0.25 / trials, _best)
     fitting = _fitting(tried[:count])
     if fitting is not None:  # a narrow minimum of E_w between the trials, where the points fit: refined too
         tried += _halvings(rank, [fitting], 0.25 / trials, _best)
-    best = tried[_best([r for _, r in tried])][0]
-    return quarter_corners(disk2, best % 1.0), [(start, float(r[0])) for start, r in tried]
+    chosen = tried[_best([r for _, r in tried])]
+    snug, moves = _snug(rank, chosen, 0.25 / trials)
+    corners, other = quarter_corners(disk2, chosen[0] % 1.0), quarter_corners(disk2, snug % 1.0)
+    tried += moves
+    return corners, [(start, float(r[0])) for start, r in tried], None if np.array_equal(other, corners) else other
+
+
+def _snug(rank, chosen: tuple[float, tuple], step: float) -> tuple[float, list]:
+    """The start of the ``chosen`` placement (start, (E_w, residual, symmetry)) moved to where its match fits the
+    points best, and the (start, rank) tried on the way: when its coordinate residual is below SNUG_RESIDUAL (one
+    surface, nearly unbent), SNUG_HALVINGS halving steps from ``step`` / 2 around it, each placement ranked by the
+    residual of the chosen symmetry's match (``rank(start, symmetries)``: :func:`placement_rank`); else the start as
+    chosen.
+
+    E_w absorbs a turn of the placement along the boundary into its local rotations where the surface is nearly
+    round about its middle (a cap, a cone, a torus patch: the lowest E_w 2-6 degrees off the right placement on
+    held-out disk-rim meshes), and the registration cannot undo it: the corners stay where they were placed. The
+    points pin the placement of one unbent surface sharply."""
+    start, (_, residual, symmetry) = chosen
+    if not residual < SNUG_RESIDUAL:
+        return start, []
+    moves = _halvings(
+        lambda s: rank(s, [symmetry]),
+        [chosen],
+        step,
+        lambda ranks: int(np.argmin([r[1] for r in ranks])),
+        SNUG_HALVINGS,
+    )
+    return min([chosen, *moves], key=lambda x: x[1][1])[0], moves
 
 
 def _fitting(tried: list[tuple[float, tuple]]) -> tuple[float, tuple] | None:

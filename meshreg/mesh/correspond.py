@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
 
-from ..bending import register_bending
+from ..bending import preferred, register_bending
 from ..correspondence import Side, inverse_uv
 from ..errors import InputError
 from ..forked import Forked, can_fork
@@ -173,19 +174,23 @@ class SquareMaps:
         The second disk's corner placements tried by a search (:func:`meshreg.mesh.corners.corner_positions`).
     symmetry : int or None
         The symmetry of the square that corners given for both disks fix.
+    other : (ndarray (n2, 2), dict) or None
+        The second disk's map and its report under another corner placement that the search found (registered
+        too; the answers are compared by :func:`meshreg.bending.preferred` on E and residual), or None.
     """
 
     uvs: list
     reports: list
     tried: list | None
     symmetry: int | None
+    other: tuple | None = None
 
 
 def square_maps(disks: list[DiskMesh], maps: list[HarmonicMap], options: Options) -> SquareMaps:
     """Both disks' corners and maps to the square (the first part of :func:`register_disks`)."""
-    positions, tried, symmetry = corner_positions(disks, maps, options)
+    positions, tried, symmetry, other = corner_positions(disks, maps, options)
     uvs, reports = zip(*(m(p) for m, p in zip(maps, positions, strict=True)), strict=True)
-    return SquareMaps(list(uvs), list(reports), tried, symmetry)
+    return SquareMaps(list(uvs), list(reports), tried, symmetry, None if other is None else maps[1](other))
 
 
 def register_disks(
@@ -228,24 +233,40 @@ def register_disks(
         infos["second"]["corner_search"] = squares.tried
     for name, report in zip(("first", "second"), squares.reports, strict=True):
         infos[name].update(report)
-    n = options.resolution
-    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
     pinned = options.symmetry if symmetry is None else symmetry
-    sigma, used = 0.0, grids
-    if options.mode == "auto" and options.bend_window > 0:
-        edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
-        finest = options.advanced.refine_triangles * np.mean(edges)
-        sigma = blur_sigma(max(edges), options.mesh_blur, n)
-        blurred = [blur_grid(g, sigma * (n - 1)) for g in grids] if sigma else None
-        result = register_bending(grids[0], grids[1], options, callback, pinned, finest, blurred)
-        used = blurred if result.params["blurred"] else grids
-    else:
-        result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
+    grids, used, sigma, result = _registered(disks, uvs, options, callback, pinned)
+    if squares.other is not None:  # the search's other placement of the second's corners: the preferred answer is kept
+        start = time.perf_counter()
+        other = _registered(disks, [uvs[0], squares.other[0]], options, callback, pinned)
+        answers = (result, other[3])
+        kept = preferred([r.energy for r in answers], [r.residual for r in answers]) == 1
+        seconds = time.perf_counter() - start
+        infos["second"]["other_placement"] = {"energy": other[3].energy, "kept": kept, "seconds": seconds}
+        if kept:
+            uvs = [uvs[0], squares.other[0]]
+            grids, used, sigma, result = other
+            infos["second"].update(squares.other[1])
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
     params = {**result.params, "mesh_blur_sigma": sigma if used is not grids else 0.0}
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos), params=params)
     whole = MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, infos)
     return snap_rigid(whole, tuple(used), options.mode == "auto" and options.bend_window > 0, surfaces)
+
+
+def _registered(disks: list[DiskMesh], uvs: list, options: Options, callback, pinned: int | None) -> tuple:
+    """The disks resampled from their maps ``uvs`` and registered: (grids, the grids registered (blurred or not),
+    the blur's sigma in grid cells, the Registration) by :func:`meshreg.bending.register_bending` (mode "auto"
+    with ``bend_window`` > 0) or :func:`meshreg.pipeline.register_grids`, under the ``pinned`` symmetry if any."""
+    n = options.resolution
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
+    if not (options.mode == "auto" and options.bend_window > 0):
+        return grids, grids, 0.0, register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
+    edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
+    finest = options.advanced.refine_triangles * np.mean(edges)
+    sigma = blur_sigma(max(edges), options.mesh_blur, n)
+    blurred = [blur_grid(g, sigma * (n - 1)) for g in grids] if sigma else None
+    result = register_bending(grids[0], grids[1], options, callback, pinned, finest, blurred)
+    return grids, blurred if result.params["blurred"] else grids, sigma, result
 
 
 def json_ready(info: dict) -> dict:
