@@ -327,7 +327,7 @@ def distance_matrix(
     >>> bool(d.distance[0, 1] < 1e-3 < d.distance[0, 2]), bool((d.distance == d.distance.T).all())
     (True, True)
     """
-    items = list(surfaces)
+    items = collection_items(surfaces)
     n = len(items)
     if n < 2:
         raise InputError("a distance matrix needs at least 2 surfaces")
@@ -353,6 +353,14 @@ def distance_matrix(
     )
     skipped = {k: p.error for k, p in enumerate(prepared) if p.error}
     return _assemble(names, done, run_params, skipped)
+
+
+def collection_items(surfaces) -> list:
+    """The members of a collection as a list; InputError for one surface given in place of a sequence of them (a
+    path, whose characters would be taken for files, or one grid array (M, N, 3), whose rows would)."""
+    if isinstance(surfaces, (str, bytes, os.PathLike)) or (isinstance(surfaces, np.ndarray) and surfaces.ndim == 3):
+        raise InputError(f"give a list of surfaces (paths, grids or meshes), not one {type(surfaces).__name__}")
+    return list(surfaces)
 
 
 def run_checkpointed(

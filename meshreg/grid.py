@@ -32,6 +32,10 @@ MIN_NODES = 3
 # surface outside the range only needs rescaling.
 MAX_COORDINATE = 1e50
 MIN_EXTENT = 1e-50
+# ... and when float64 steps by more than this fraction of the surface's extent at its distance from the origin: its
+# shape then keeps fewer than six digits (a mesh registered against its own copy, both moved 1e12 from the origin, gave
+# E 8e-5, 1e14 away E 1.1; 1e15 away the closest-point search divided by zero)
+COORDINATE_STEP = 1e-6
 # A surface whose area is below this fraction of its bounding box's squared diameter is a degenerate sliver:
 # its cell normals are differences of nearly equal products and carry fewer than 6 significant digits.
 MIN_AREA_RATIO = 1e-10
@@ -65,7 +69,8 @@ def coordinates(values, what: str) -> np.ndarray:
 
 def check_scale(points: np.ndarray, what: str) -> float:
     """The diameter of the bounding box of ``points`` (..., 3); InputError when the coordinates are too large or
-    the extent too small for float64 areas (see MAX_COORDINATE, MIN_EXTENT)."""
+    the extent too small for float64 areas (see MAX_COORDINATE, MIN_EXTENT), or too far from the origin for the
+    digits of the shape (COORDINATE_STEP)."""
     flat = points.reshape(-1, 3)
     largest = float(np.abs(flat).max()) if flat.size else 0.0
     if largest > MAX_COORDINATE:
@@ -78,6 +83,12 @@ def check_scale(points: np.ndarray, what: str) -> float:
         raise InputError(
             f"{what} span only {diameter:.1e}: areas underflow below {MIN_EXTENT:.0e}; rescale the surface "
             "(E, R and h do not depend on its scale)"
+        )
+    if diameter > 0 and np.spacing(largest) > COORDINATE_STEP * diameter:
+        raise InputError(
+            f"{what} lie {largest:.1e} from the origin but span only {diameter:.1e}: float64 steps by "
+            f"{np.spacing(largest):.1e} there, so the shape keeps fewer than six digits; move the surface to the "
+            "origin (subtract its centre) where it is made, before its coordinates are rounded"
         )
     return diameter
 

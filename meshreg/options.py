@@ -428,7 +428,9 @@ class Options:
                 ok = hasattr(value, "__len__") and not isinstance(value, str) and len(value) == 4
                 ok = ok and len({int(v) for v in value if _is_int(v)}) == 4
                 if not ok or not all(_is_int(v) and v >= 0 for v in value):
-                    raise InputError(f"{name} must be four different vertex ids, got {value}")
+                    raise InputError(
+                        f"{name} must be four different vertex ids (integers from 0, one per corner), got {value}"
+                    )
                 object.__setattr__(self, name, tuple(int(v) for v in value))
         if not isinstance(self.advanced, Advanced):
             raise InputError(f"advanced must be a meshreg.Advanced, got {type(self.advanced).__name__}")

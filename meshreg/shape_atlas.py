@@ -47,7 +47,15 @@ import numpy as np
 
 from .atlas_result import Atlas
 from .atlas_settings import ATLAS_OPTIONS, AtlasSettings
-from .batch import Prepared, _run_key, distance_matrix, prepare_collection, registered_pair, run_checkpointed
+from .batch import (
+    Prepared,
+    _run_key,
+    collection_items,
+    distance_matrix,
+    prepare_collection,
+    registered_pair,
+    run_checkpointed,
+)
 from .errors import InputError
 from .grid import GridSurface
 from .mesh.export import grid_faces
@@ -174,7 +182,7 @@ def atlas(
     started = tic = time.perf_counter()
     options = options or ATLAS_OPTIONS
     settings = settings or AtlasSettings()
-    items = list(surfaces)
+    items = collection_items(surfaces)
     members, failures = _prepared_members(items, names, options)
     timings = {"prepare": time.perf_counter() - tic}
     store = Path(checkpoint) if checkpoint else None

@@ -623,6 +623,7 @@ def test_sigterm_leaves_no_process_behind(tmp_path):
         (sample(sine(2), 5, 5).points > 0, "booleans"),
         (1e80 * sample(sine(2), 5, 5).points, r"reach 1\.0e\+80: areas overflow"),
         (1e-60 * sample(sine(2), 5, 5).points, "span only"),
+        (1e15 + sample(sine(2), 5, 5).points, "float64 steps by 1.2e-01 there"),
         (np.stack([*np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1e-12, 5)), np.zeros((5, 5))], -1), "sliver"),
         ([[[0, 0, 0]] * 3, [[1, 0, 0]] * 2], "not an array of numbers"),
     ],
@@ -823,3 +824,23 @@ def test_run_error_is_exit_status_1(capsys, monkeypatch):
     monkeypatch.setattr(meshreg.paper, "run_paper", fails)
     code, err = _run_main(capsys, "paper", "-q")
     _one_line(err, 1, code, "a run that could not finish")
+
+
+def test_mesh_inputs_that_crashed_deep_inside_get_clear_answers():
+    """Found by a fuzz of the command line (2026-12-03): each raised a traceback from numpy, SuperLU or numba."""
+    square = (np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]), np.array([[0, 1, 3], [0, 3, 2]]))
+    v, f, _ = random_disk_mesh(lambda x, y: np.c_[x, y, 0.2 * np.sin(3 * x) * y], 400, seed=1)
+    # two triangles folded onto each other over one square: their tiled areas cancel (the scale was 0)
+    folded = (square[0], np.array([[3, 2, 1], [0, 1, 3]]))
+    assert np.isfinite(register_meshes(folded, (v, f), Options(resolution=21)).result.energy)
+    x, y = np.meshgrid(np.linspace(-1, 1, 20), np.linspace(-1, 1, 20), indexing="ij")
+    spike = np.c_[x.ravel(), y.ravel(), 0.2 * np.sin(3 * x.ravel()) * np.cos(2 * y.ravel())]
+    spike[210, 2] = 1e8  # a scanner outlier inside: mean-value weights underflow, the Laplacian is singular
+    cells = np.arange(19 * 20).reshape(19, 20)[:, :19].ravel()
+    grid = np.vstack([np.c_[cells, cells + 20, cells + 1], np.c_[cells + 1, cells + 20, cells + 21]])
+    with pytest.raises(InputError, match="Laplacian .* is singular"):
+        register_meshes((spike, grid), (v, f), Options(resolution=21))
+    with pytest.raises(InputError, match="lie 1.0e\\+15 from the origin"):
+        register_meshes((v + 1e15, f), (v, f), Options(resolution=21))
+    with pytest.raises(InputError, match="not one str"):
+        distance_matrix("surfaces.npy")

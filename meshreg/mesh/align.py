@@ -476,8 +476,13 @@ def axes_pose(first: Surface, second: Surface) -> Alignment | None:
 
 
 def areas_scale(first: Surface, second: Surface) -> float:
-    """The scale of one region in two units: the square root of the ratio of the meshes' :func:`tiled_area`."""
-    return float(np.sqrt(tiled_area(first) / tiled_area(second)))
+    """The scale of one region in two units: the square root of the ratio of the meshes' :func:`tiled_area`, or of
+    their plain areas where a tiled area is not positive (a mesh folded flat onto itself: two triangles over one
+    square, whose projections cancel)."""
+    tiled = tiled_area(first), tiled_area(second)
+    if min(tiled) > 0:
+        return float(np.sqrt(tiled[0] / tiled[1]))
+    return float(np.sqrt(first.area / second.area))
 
 
 def tiled_area(surface: Surface) -> float:

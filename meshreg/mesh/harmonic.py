@@ -448,7 +448,15 @@ class HarmonicMap:
         with ThreadPoolExecutor(1) as pool:
             analysis = pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
             block, coupling = self.assemble()
-            return coupling, Factorization(block, analysis.result())
+            try:
+                return coupling, Factorization(block, analysis.result())
+            except RuntimeError as err:  # SuperLU: "Factor is exactly singular"
+                raise InputError(
+                    f"the mesh's Laplacian ({self.weights} weights) is singular ({err}): its weights vanish at some "
+                    "vertices, as next to a vertex far out of place (a scanner outlier) or to triangles of almost no "
+                    "area beside large ones; remove the outliers, or try the other weights (--weights cotangent, "
+                    "Options(weights='cotangent'))"
+                ) from None
 
     def __call__(self, corner_pos: np.ndarray):
         """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from
