@@ -176,7 +176,7 @@ class SquareMaps:
         The symmetry of the square that corners given for both disks fix.
     other : (ndarray (n2, 2), dict) or None
         The second disk's map and its report under another corner placement that the search found (registered
-        too; the answers are compared by :func:`meshreg.bending.preferred` on E and residual), or None.
+        too; the final answers are compared by :func:`meshreg.bending.preferred` on E and residual), or None.
     """
 
     uvs: list
@@ -234,39 +234,48 @@ def register_disks(
     for name, report in zip(("first", "second"), squares.reports, strict=True):
         infos[name].update(report)
     pinned = options.symmetry if symmetry is None else symmetry
-    grids, used, sigma, result = _registered(disks, uvs, options, callback, pinned)
-    if squares.other is not None:  # the search's other placement of the second's corners: the preferred answer is kept
-        start = time.perf_counter()
-        other = _registered(disks, [uvs[0], squares.other[0]], options, callback, pinned)
-        answers = (result, other[3])
-        kept = preferred([r.energy for r in answers], [r.residual for r in answers]) == 1
-        seconds = time.perf_counter() - start
-        infos["second"]["other_placement"] = {"energy": other[3].energy, "kept": kept, "seconds": seconds}
-        if kept:
-            uvs = [uvs[0], squares.other[0]]
-            grids, used, sigma, result = other
-            infos["second"].update(squares.other[1])
+    start = time.perf_counter()
+    whole = _registered(disks, uvs, n_input, infos, options, callback, pinned, surfaces)
+    if squares.other is None:
+        return whole
+    # the search's other placement of the second's corners: both registered (and snapped), the preferred one kept
+    seconds = [time.perf_counter() - start]
+    moved = {**infos, "second": {**infos["second"], **squares.other[1]}}
+    other = _registered(disks, [uvs[0], squares.other[0]], n_input, moved, options, callback, pinned, surfaces)
+    seconds.append(time.perf_counter() - start - seconds[0])
+    answers = (whole, other)
+    kept = preferred([a.result.energy for a in answers], [a.result.residual for a in answers])
+    left = answers[1 - kept].result
+    record = {"energy": left.energy, "residual": left.residual, "kept": bool(kept), "seconds": seconds[1 - kept]}
+    chosen = answers[kept]
+    info = {**chosen.info, "second": {**chosen.info["second"], "other_placement": record}}
+    spent = chosen.result.timings
+    timings = {**spent, "other_placement": seconds[1 - kept], "total": spent.get("total", 0.0) + seconds[1 - kept]}
+    return replace(chosen, info=info, result=replace(chosen.result, info=json_ready(info), timings=timings))
+
+
+def _registered(disks, uvs, n_input, infos, options: Options, callback, pinned, surfaces) -> MeshRegistration:
+    """The disks resampled from their maps ``uvs``, registered by :func:`meshreg.bending.register_bending` (mode
+    "auto" with ``bend_window`` > 0) or :func:`meshreg.pipeline.register_grids` under the ``pinned`` symmetry (if
+    any), and snapped (:func:`meshreg.mesh.snap.snap_rigid`); ``infos`` becomes the result's preparation report."""
+    n = options.resolution
+    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
+    sigma, used = 0.0, grids
+    bending = options.mode == "auto" and options.bend_window > 0
+    if bending:
+        edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
+        finest = options.advanced.refine_triangles * np.mean(edges)
+        sigma = blur_sigma(max(edges), options.mesh_blur, n)
+        blurred = [blur_grid(g, sigma * (n - 1)) for g in grids] if sigma else None
+        result = register_bending(grids[0], grids[1], options, callback, pinned, finest, blurred)
+        used = blurred if result.params["blurred"] else grids
+    else:
+        result = register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
     params = {**result.params, "mesh_blur_sigma": sigma if used is not grids else 0.0}
     result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos), params=params)
     whole = MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, infos)
-    return snap_rigid(whole, tuple(used), options.mode == "auto" and options.bend_window > 0, surfaces)
-
-
-def _registered(disks: list[DiskMesh], uvs: list, options: Options, callback, pinned: int | None) -> tuple:
-    """The disks resampled from their maps ``uvs`` and registered: (grids, the grids registered (blurred or not),
-    the blur's sigma in grid cells, the Registration) by :func:`meshreg.bending.register_bending` (mode "auto"
-    with ``bend_window`` > 0) or :func:`meshreg.pipeline.register_grids`, under the ``pinned`` symmetry if any."""
-    n = options.resolution
-    grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
-    if not (options.mode == "auto" and options.bend_window > 0):
-        return grids, grids, 0.0, register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback)
-    edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
-    finest = options.advanced.refine_triangles * np.mean(edges)
-    sigma = blur_sigma(max(edges), options.mesh_blur, n)
-    blurred = [blur_grid(g, sigma * (n - 1)) for g in grids] if sigma else None
-    result = register_bending(grids[0], grids[1], options, callback, pinned, finest, blurred)
-    return grids, blurred if result.params["blurred"] else grids, sigma, result
+    return snap_rigid(whole, tuple(used), bending, surfaces)
 
 
 def json_ready(info: dict) -> dict:
