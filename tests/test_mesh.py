@@ -338,6 +338,29 @@ def test_unreadable_and_empty_files(tmp_path):
         load_mesh(tmp_path / "cut.ply")
 
 
+def test_text_meshes_that_trimesh_would_read_wrong_are_refused(tmp_path):
+    """Found by a fuzz (2026-12-03): an OBJ file counting vertices from 0 was read garbled (E 1.94 against itself)
+    and OFF files whose header counts do not match their lines lost triangles or were read cut short."""
+    v, f, _ = random_disk_mesh(bump(), 60, seed=3)
+    points = [f"v {x} {y} {z}" for x, y, z in v]
+    (tmp_path / "zero.obj").write_text("\n".join(points + [f"f {a} {b} {c}" for a, b, c in f]) + "\n")
+    with pytest.raises(InputError, match="OBJ counts vertices from 1"):
+        load_mesh(tmp_path / "zero.obj")
+    (tmp_path / "one.obj").write_text("\n".join(points + [f"f {a + 1} {b + 1} {c + 10}" for a, b, c in f[:1]]))
+    assert len(load_mesh(tmp_path / "one.obj")[1]) == 1  # an index 10 (or 20, 30) is not a 0
+    body = [f"{x} {y} {z}" for x, y, z in v] + [f"3 {a} {b} {c}" for a, b, c in f]
+    for name, counts in (
+        ("ok.off", (len(v), len(f))),
+        ("more.off", (len(v) + 5, len(f))),
+        ("cut.off", (len(v), len(f) + 9)),
+    ):
+        (tmp_path / name).write_text("\n".join(["OFF", f"{counts[0]} {counts[1]} 0", *body]) + "\n")
+    assert np.array_equal(load_mesh(tmp_path / "ok.off")[1], f)
+    for name in ("more.off", "cut.off"):
+        with pytest.raises(InputError, match="header promises"):
+            load_mesh(tmp_path / name)
+
+
 @pytest.mark.slow
 def test_cli_meshes_end_to_end_and_errors(tmp_path):
     v1, f1, _ = random_disk_mesh(bump(), 800, seed=6)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -54,6 +55,8 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
         vertices, faces = read if read is not None else _read_with_trimesh(path, suffix)
     except MemoryError:
         raise InputError(f"{path}: too large to read into memory") from None
+    except InputError:
+        raise
     except Exception as err:  # trimesh raises many types on bad files
         words = str(err).replace(str(path), "").strip(" :'\"")
         raise InputError(f"{path}: cannot read it as a {suffix} mesh ({type(err).__name__}: {words})") from None
@@ -67,11 +70,46 @@ def _read_with_trimesh(path: Path, suffix: str) -> tuple[np.ndarray, np.ndarray]
     import trimesh
 
     options = {"merge_tex": True, "merge_norm": True, "maintain_order": True} if suffix == ".obj" else {}
+    _check_text_mesh(path, suffix)
     mesh = trimesh.load(path, process=False, force="mesh", **options)
     if suffix in (".stl", ".glb", ".gltf") and len(getattr(mesh, "faces", [])):
         mesh.merge_vertices()  # these formats repeat vertices along seams or per triangle: weld them
     vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=float)
     return vertices, np.asarray(getattr(mesh, "faces", np.empty((0, 3))), dtype=np.int64)
+
+
+# a face line of an OBJ file with a vertex index 0 (OBJ counts vertices from 1; some exporters write from 0)
+_OBJ_ZERO = re.compile(rb"(?m)^f[ \t].*?(?<=[ \t])0(?:/[^ \t\r\n]*)?(?=[ \t\r\n]|$)")
+
+
+def _check_text_mesh(path: Path, suffix: str) -> None:
+    """InputError for text files that trimesh would read wrong without a word: an OBJ face with vertex index 0
+    (indices count from 1: trimesh takes 0 for the last vertex), an OFF file with fewer lines than its header's
+    vertex and face counts promise (a file cut short, or counts that would read face lines as vertices)."""
+    if suffix not in (".obj", ".off"):
+        return
+    data = path.read_bytes()
+    if suffix == ".obj":
+        if _OBJ_ZERO.search(data):
+            raise InputError(
+                f"{path}: a face refers to vertex 0, but OBJ counts vertices from 1 (an exporter that counts from "
+                "0?): add 1 to every face index"
+            )
+        return
+    lines = [t for t in (line.split(b"#")[0].strip() for line in data.splitlines()) if t]
+    first = lines[0].split() if lines else [b""]
+    if not first[0].endswith(b"OFF"):
+        return  # not a header trimesh reads either: its own error says so
+    counts, body = (first[1:], lines[1:]) if len(first) > 1 else (lines[1].split() if len(lines) > 1 else [], lines[2:])
+    try:
+        vertices, faces = int(counts[0]), int(counts[1])
+    except (IndexError, ValueError):
+        return
+    if len(body) < vertices + faces:
+        raise InputError(
+            f"{path}: its header promises {vertices} vertices and {faces} faces, one per line, but {len(body)} lines "
+            "follow (a file cut short, or wrong counts): fix the header or export the mesh again"
+        )
 
 
 @dataclass(frozen=True)
