@@ -56,6 +56,13 @@ class Checkpoint:
     def _read(self) -> int:
         """Read the records; returns the bytes to keep (0: start afresh)."""
         start_over = f"delete {self.path} to start over"
+
+        def foreign(why: str) -> InputError:  # no checkpoint at all: maybe the user's file (an input given as output)
+            return InputError(
+                f"{self.path} is not a meshreg checkpoint ({why}): write the output elsewhere (only if it is a damaged "
+                f"checkpoint of yours, {start_over})"
+            )
+
         try:
             data = self.path.read_bytes()
         except OSError as err:
@@ -63,25 +70,21 @@ class Checkpoint:
         if b"\n" not in data:
             if _cut_header(data):
                 return 0  # empty, or killed while writing its header
-            raise InputError(
-                f"{self.path} is not a meshreg checkpoint (it holds no header): {start_over}, or write the output "
-                "elsewhere"
-            )
+            raise foreign("it holds no header")
         keep = data.rindex(b"\n") + 1
         try:
             lines = data[:keep].decode("utf-8").split("\n")[:-1]
         except UnicodeDecodeError as err:
             line = data[: err.start].count(b"\n") + 1
-            salvage = "delete that line to keep the other finished pairs, or " if line > 1 else ""
+            if line == 1:
+                raise foreign("line 1 is not UTF-8 text") from None
             raise InputError(
-                f"{self.path} line {line} is not UTF-8 text (a damaged checkpoint): {salvage}{start_over}"
+                f"{self.path} line {line} is not UTF-8 text (a damaged checkpoint): delete that line to keep the other "
+                f"finished pairs, or {start_over}"
             ) from None
         header = _json_or_none(lines[0])
         if not isinstance(header, dict) or set(header) != {"key"}:
-            raise InputError(
-                f"{self.path} is not a meshreg checkpoint (line 1 is not its header): {start_over}, "
-                "or write the output elsewhere"
-            )
+            raise foreign("line 1 is not its header")
         if header["key"] != self.key:
             raise InputError(
                 f"{self.path} is a checkpoint of a run with other inputs or parameters: rerun with those, "

@@ -308,6 +308,8 @@ def _damaged(lines: list, case: str) -> bytes:
     }
     if case == "not utf-8":
         return (header + "\n").encode() + b"\xff\xfe\n" + "\n".join(rest).encode() + b"\n"
+    if case == "a binary file":  # someone's file given as the checkpoint (a fuzz gave an input grid, 2026-12-03)
+        return b"\x93NUMPY\x01\x00v\x00{'descr': '<f8'}\n" + bytes(range(256))
     return ("\n".join(bodies[case]) + "\n").encode()
 
 
@@ -320,6 +322,7 @@ def _damaged(lines: list, case: str) -> bytes:
         ("bad rotation", ["line 2 holds no 3 x 3 rotation"]),
         ("not utf-8", ["line 2 is not UTF-8 text", "delete that line", "to start over"]),
         ("header", ["is not a meshreg checkpoint", "to start over"]),
+        ("a binary file", ["is not a meshreg checkpoint (line 1 is not UTF-8 text): write the output elsewhere"]),
     ],
 )
 def test_corrupt_checkpoint_says_what_is_wrong_and_how_to_salvage(tmp_path, finished_checkpoint, case, words):
