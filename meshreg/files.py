@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, RunError
-from .ownership import forget, record, refuse_foreign
+from .ownership import RECORD_FILE, forget, record, refuse_foreign
 
 GRID_SUFFIXES = (".npy", ".npz", ".txt", ".dat")  # .txt and .dat: the paper's text format
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -69,6 +69,8 @@ def output_dir(path, names, inputs=(), own_only: bool = True) -> Path:
     an output's name without meshreg having written it there (:func:`meshreg.ownership.not_ours`; the files named
     by the user, such as the matrix's ``D.npz``, are checked with ``own_only`` False).
     """
+    if isinstance(path, str) and not path.strip():  # an unset shell variable, say: not the current directory
+        raise InputError("the output directory is an empty name: give one with -o")
     out = Path(path)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} exists and is not a directory: give another -o")
@@ -86,6 +88,9 @@ def output_dir(path, names, inputs=(), own_only: bool = True) -> Path:
         for parent in target.relative_to(out).parents:
             if (out / parent).exists() and not (out / parent).is_dir():
                 raise InputError(f"{out / parent} is a file where an output directory goes: move it or give another -o")
+    if (out / RECORD_FILE).exists() and not (out / RECORD_FILE).is_file():
+        listed = out / RECORD_FILE
+        raise InputError(f"{listed} (where meshreg lists its outputs) is not a file: move it or give another -o")
     if own_only:
         refuse_foreign(out, names)
     try:

@@ -366,6 +366,8 @@ def test_cli_corrupt_checkpoint_one_line(tmp_path, finished_checkpoint):
         ("a.npy", ["exists and is not a directory"]),
         ("blocked", ["result.npz is a directory where an output file goes"]),
         ("unwritable", ["give another -o"]),
+        ("listed", [".meshreg-outputs (where meshreg lists its outputs) is not a file"]),  # was exit 1 after the work
+        ("", ["an empty name"]),  # was the current directory
     ],
 )
 def test_bad_output_place_is_refused_before_computing(tmp_path, grids, where, words):
@@ -373,6 +375,7 @@ def test_bad_output_place_is_refused_before_computing(tmp_path, grids, where, wo
     a.write_bytes((grids / "a.npy").read_bytes())
     b.write_bytes((grids / "b.npy").read_bytes())
     (tmp_path / "blocked" / "result.npz").mkdir(parents=True)
+    (tmp_path / "listed" / RECORD_FILE).mkdir(parents=True)
     if where == "unwritable":
         if os.geteuid() == 0:  # root writes anywhere but in /sys
             out = Path("/sys/kernel/meshreg-out")
@@ -383,7 +386,7 @@ def test_bad_output_place_is_refused_before_computing(tmp_path, grids, where, wo
             (tmp_path / "ro").chmod(0o555)
             out = tmp_path / "ro" / "out"
     else:
-        out = tmp_path / where
+        out = tmp_path / where if where else ""
     before, listing = a.read_bytes(), sorted(tmp_path.rglob("*"))
     proc = _cli("register", a, b, "-o", out, "-q")
     _one_line(proc.stderr, 2, proc.returncode, *words)
