@@ -335,6 +335,11 @@ class Registration:
             raise InputError(f"{path}: not a meshreg result file ({type(err).__name__}: {err})") from None
 
 
+def with_stage(timings: dict, stage: str, seconds: float) -> dict:
+    """``timings`` (a result's, seconds by stage) with ``stage``'s ``seconds`` recorded and added to ``"total"``."""
+    return {**timings, stage: seconds, "total": timings.get("total", 0.0) + seconds}
+
+
 def _side(data, name: str) -> Side | None:
     keys = [f"{name}_{key}" for key in _SIDE_KEYS]
     return Side(*(data[k] for k in keys)) if all(k in data for k in keys) else None

@@ -199,14 +199,15 @@ def test_snug_moves_a_placement_that_fits_the_points_to_where_they_fit_best():
 
     asked = []
 
-    def rank(start, symmetries):
+    def rank(start, symmetries):  # E_w falls away from the residual's minimum: the move must follow the residual
         asked.append(symmetries)
-        return (1.0, 0.001 + abs(start - 0.31), symmetries[0])
+        return (1.0 - start, 0.001 + abs(start - 0.31), symmetries[0])
 
-    start, moves = _snug(rank, (0.3, (1.0, 0.011, 5)), 1 / 32)
+    start, moves = _snug(rank, (0.3, (0.7, 0.011, 5)), 1 / 32)
     assert abs(start - 0.31) < 1 / 32 / 2**SNUG_HALVINGS and len(moves) == 2 * SNUG_HALVINGS
     assert all(s == [5] for s in asked)
-    assert _snug(rank, (0.3, (1.0, SNUG_RESIDUAL, 5)), 1 / 32) == (0.3, [])
+    assert _snug(rank, (0.3, (0.7, SNUG_RESIDUAL, 5)), 1 / 32) == (0.3, [])
+    assert _snug(rank, (0.31, (0.69, 0.001, 5)), 1 / 32)[0] == 0.31  # every move fits worse: the start stays
 
 
 @pytest.mark.slow
@@ -346,8 +347,9 @@ def test_text_meshes_that_trimesh_would_read_wrong_are_refused(tmp_path):
     (tmp_path / "zero.obj").write_text("\n".join(points + [f"f {a} {b} {c}" for a, b, c in f]) + "\n")
     with pytest.raises(InputError, match="OBJ counts vertices from 1"):
         load_mesh(tmp_path / "zero.obj")
-    (tmp_path / "one.obj").write_text("\n".join(points + [f"f {a + 1} {b + 1} {c + 10}" for a, b, c in f[:1]]))
-    assert len(load_mesh(tmp_path / "one.obj")[1]) == 1  # an index 10 (or 20, 30) is not a 0
+    faces = [f"f {a + 1} {b + 1} {c + 10}" for a, b, c in f[:1]] + ["# f 0 1 2 was the old face", "f -1 -2 -3"]
+    (tmp_path / "one.obj").write_text("\n".join(points + faces))
+    assert len(load_mesh(tmp_path / "one.obj")[1]) == 2  # an index 10, relative indices, a comment: no 0
     body = [f"{x} {y} {z}" for x, y, z in v] + [f"3 {a} {b} {c}" for a, b, c in f]
     for name, counts in (
         ("ok.off", (len(v), len(f))),

@@ -10,11 +10,11 @@ import numpy as np
 
 from ..bending import preferred, register_bending
 from ..correspondence import Side, inverse_uv
-from ..errors import InputError
+from ..errors import InputError, RunError
 from ..forked import Forked, can_fork
 from ..options import Options
 from ..pipeline import register_grids
-from ..result import Registration
+from ..result import Registration, with_stage
 from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap, edge_length, given_corners
@@ -125,8 +125,7 @@ def register_meshes(
         if found.regime in ("rigid", "elastic"):
             return register_overlap(disks[0], disks[1], found, n_input, options, infos)
     whole.info["overlap"] = found.summary()
-    spent = whole.result.timings
-    timings = {**spent, "overlap": found.seconds, "total": spent.get("total", 0.0) + found.seconds}
+    timings = with_stage(whole.result.timings, "overlap", found.seconds)
     return replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
 
 
@@ -139,7 +138,7 @@ def _prepared(meshes: list, options: Options) -> tuple[list[DiskMesh], list[Harm
         try:
             disk = prepare_disk(mesh.vertices, mesh.faces, cleanup=options.cleanup)
             _check_corners(disk, options, name)
-            maps.append(HarmonicMap(disk, options.weights))
+            maps.append(HarmonicMap(disk, options.weights, mesh.name))
         except InputError as err:
             raise InputError(f"{mesh.name}: {err}") from None
         disks.append(disk)
@@ -205,7 +204,8 @@ def register_disks(
 ) -> MeshRegistration:
     """Register two prepared disks whole (the path of :func:`register_meshes` without the overlap): corners and
     harmonic maps (:func:`square_maps`), grids, :func:`meshreg.bending.register_bending` or
-    :func:`meshreg.pipeline.register_grids`.
+    :func:`meshreg.pipeline.register_grids`, the snap; when the corner search moved the second's placement to where
+    the points fit (``squares.other``), that placement is registered too and one answer kept (:func:`_placement_kept`).
 
     Parameters
     ----------
@@ -238,19 +238,35 @@ def register_disks(
     whole = _registered(disks, uvs, n_input, infos, options, callback, pinned, surfaces)
     if squares.other is None:
         return whole
-    # the search's other placement of the second's corners: both registered (and snapped), the preferred one kept
-    seconds = [time.perf_counter() - start]
     moved = {**infos, "second": {**infos["second"], **squares.other[1]}}
-    other = _registered(disks, [uvs[0], squares.other[0]], n_input, moved, options, callback, pinned, surfaces)
-    seconds.append(time.perf_counter() - start - seconds[0])
-    answers = (whole, other)
-    kept = preferred([a.result.energy for a in answers], [a.result.residual for a in answers])
-    left = answers[1 - kept].result
-    record = {"energy": left.energy, "residual": left.residual, "kept": bool(kept), "seconds": seconds[1 - kept]}
+    uvs = [uvs[0], squares.other[0]]
+    return _placement_kept(
+        whole, lambda: _registered(disks, uvs, n_input, moved, options, callback, pinned, surfaces), start
+    )
+
+
+def _placement_kept(whole: MeshRegistration, register_moved, start: float) -> MeshRegistration:
+    """``whole`` (registered from the search's chosen corner placement since ``start``, a perf_counter time) or the
+    registration ``register_moved()`` of the placement :func:`~meshreg.mesh.corners._snug` moved it to, whichever
+    :func:`meshreg.bending.preferred` prefers by final E and residual. ``info["second"]["other_placement"]`` records
+    the other answer's E and residual, whether the moved placement was kept, and the other registration's seconds
+    (``timings["other_placement"]``, added to the total); or the error that left the moved placement without an
+    answer (``whole`` stands)."""
+    first = time.perf_counter() - start
+    try:
+        moved = register_moved()
+    except (InputError, RunError) as err:  # every match mirrored there, say: the chosen placement's answer stands
+        record = {"error": str(err)}
+        answers, kept, seconds = (whole,), 0, time.perf_counter() - start - first
+    else:
+        answers = (whole, moved)
+        kept = preferred([a.result.energy for a in answers], [a.result.residual for a in answers])
+        left = answers[1 - kept].result
+        seconds = (first, time.perf_counter() - start - first)[1 - kept]
+        record = {"energy": left.energy, "residual": left.residual, "kept": bool(kept), "seconds": seconds}
     chosen = answers[kept]
     info = {**chosen.info, "second": {**chosen.info["second"], "other_placement": record}}
-    spent = chosen.result.timings
-    timings = {**spent, "other_placement": seconds[1 - kept], "total": spent.get("total", 0.0) + seconds[1 - kept]}
+    timings = with_stage(chosen.result.timings, "other_placement", seconds)
     return replace(chosen, info=info, result=replace(chosen.result, info=json_ready(info), timings=timings))
 
 

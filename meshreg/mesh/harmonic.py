@@ -415,11 +415,12 @@ class HarmonicMap:
         cotangent weights (libigl's harmonic map) can flip triangles on scans.
     """
 
-    def __init__(self, disk: DiskMesh, weights: str = "mean-value"):
+    def __init__(self, disk: DiskMesh, weights: str = "mean-value", name: str = "the mesh"):
         if weights not in ("mean-value", "cotangent"):
             raise InputError("weights must be 'mean-value' or 'cotangent'")
         self.disk = disk
         self.weights = weights
+        self.name = name  # what an error calls the mesh (its file, or "first mesh")
         self._blocks = None
 
     @cached_property
@@ -448,15 +449,17 @@ class HarmonicMap:
         with ThreadPoolExecutor(1) as pool:
             analysis = pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
             block, coupling = self.assemble()
-            try:
-                return coupling, Factorization(block, analysis.result())
-            except RuntimeError as err:  # SuperLU: "Factor is exactly singular"
-                raise InputError(
-                    f"the mesh's Laplacian ({self.weights} weights) is singular ({err}): its weights vanish at some "
-                    "vertices, as next to a vertex far out of place (a scanner outlier) or to triangles of almost no "
-                    "area beside large ones; remove the outliers, or try the other weights (--weights cotangent, "
-                    "Options(weights='cotangent'))"
-                ) from None
+            pattern = analysis.result()
+        try:
+            return coupling, Factorization(block, pattern)
+        except RuntimeError as err:  # SuperLU: "Factor is exactly singular"
+            other = "cotangent" if self.weights == "mean-value" else "mean-value"
+            raise InputError(
+                f"{self.name}: its Laplacian ({self.weights} weights) is singular ({err}): the weights vanish at "
+                "some vertices, as next to a vertex far out of place (a scanner outlier) or to triangles of almost "
+                f"no area beside large ones; remove the outliers, or try the other weights (--weights {other}, "
+                f"Options(weights='{other}'))"
+            ) from None
 
     def __call__(self, corner_pos: np.ndarray):
         """uv (n, 2) in [0, 1]^2 with the corners at loop positions ``corner_pos`` (4, in loop order from

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..objective import Objective
+from ..result import with_stage
 from .align import Cloud, icp
 from .surface import Surface, transform_points
 
@@ -85,7 +86,7 @@ def snap_rigid(mr, registered: tuple, tried: bool = True, surfaces: tuple | None
         residual_mirrored=residual.minus,
         transform=transform,
         params={**result.params, "snapped": True, "snap_rms": rms, "energy_before_snap": result.energy},
-        timings=_timed(result.timings, seconds),
+        timings=with_stage(result.timings, "snap", seconds),
     )
     return replace(mr, result=snapped)
 
@@ -126,11 +127,6 @@ def _coherent_rms(points: Cloud, first: Surface) -> float:
     return float(np.sqrt(np.mean(np.mean(signed[near], axis=1) ** 2)))
 
 
-def _timed(timings: dict, seconds: float) -> dict:
-    """``timings`` with the snap's ``seconds`` recorded and added to ``total``."""
-    return {**timings, "snap": seconds, "total": timings.get("total", 0.0) + seconds}
-
-
 def _vertex_sample(surface: Surface) -> Cloud:
     """At most SNAP_POINTS of the surface's vertices (a seeded random choice) with their normals: points on the
     surface itself (voxel centroids of a curved mesh lie off it by more than the snap's tolerance)."""
@@ -149,5 +145,5 @@ def _rms_distance(before: np.ndarray, after: np.ndarray) -> float:
 
 def _marked(mr, snapped: bool, seconds: float | None = None):
     """``mr`` with ``params["snapped"]`` set (and the ``seconds`` spent trying, when the ICP ran)."""
-    timings = mr.result.timings if seconds is None else _timed(mr.result.timings, seconds)
+    timings = mr.result.timings if seconds is None else with_stage(mr.result.timings, "snap", seconds)
     return replace(mr, result=replace(mr.result, params={**mr.result.params, "snapped": snapped}, timings=timings))

@@ -79,7 +79,7 @@ def _read_with_trimesh(path: Path, suffix: str) -> tuple[np.ndarray, np.ndarray]
 
 
 # a face line of an OBJ file with a vertex index 0 (OBJ counts vertices from 1; some exporters write from 0)
-_OBJ_ZERO = re.compile(rb"(?m)^f[ \t].*?(?<=[ \t])0(?:/[^ \t\r\n]*)?(?=[ \t\r\n]|$)")
+_OBJ_ZERO = re.compile(rb"(?m)^[ \t]*f[ \t][^\n#]*?(?<=[ \t])0(?:/[^ \t\r\n#]*)?(?=[ \t\r\n#]|$)")
 
 
 def _check_text_mesh(path: Path, suffix: str) -> None:
