@@ -88,8 +88,8 @@ def output_dir(path, names, inputs=(), own_only: bool = True) -> Path:
         for parent in target.relative_to(out).parents:
             if (out / parent).exists() and not (out / parent).is_dir():
                 raise InputError(f"{out / parent} is a file where an output directory goes: move it or give another -o")
-    if (out / RECORD_FILE).exists() and not (out / RECORD_FILE).is_file():
-        listed = out / RECORD_FILE
+    listed = out / RECORD_FILE
+    if listed.exists() and not listed.is_file():
         raise InputError(f"{listed} (where meshreg lists its outputs) is not a file: move it or give another -o")
     if own_only:
         refuse_foreign(out, names)

@@ -230,14 +230,13 @@ def _snug(rank, chosen: tuple[float, tuple], step: float) -> tuple[float, list]:
     start, (_, residual, symmetry) = chosen
     if not residual < SNUG_RESIDUAL:
         return start, []
-    moves = _halvings(
-        lambda s: rank(s, [symmetry]),
-        [chosen],
-        step,
-        lambda ranks: int(np.argmin([r[1] for r in ranks])),
-        SNUG_HALVINGS,
-    )
-    return min([chosen, *moves], key=lambda x: x[1][1])[0], moves
+
+    def fits(ranks):  # index of the rank with the lowest residual
+        return int(np.argmin([r[1] for r in ranks]))
+
+    moves = _halvings(lambda s: rank(s, [symmetry]), [chosen], step, fits, SNUG_HALVINGS)
+    tried = [chosen, *moves]
+    return tried[fits([r for _, r in tried])][0], moves
 
 
 def _fitting(tried: list[tuple[float, tuple]]) -> tuple[float, tuple] | None:

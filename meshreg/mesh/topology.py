@@ -100,7 +100,8 @@ def _check_text_mesh(path: Path, suffix: str) -> None:
     first = lines[0].split() if lines else [b""]
     if not first[0].endswith(b"OFF"):
         return  # not a header trimesh reads either: its own error says so
-    counts, body = (first[1:], lines[1:]) if len(first) > 1 else (lines[1].split() if len(lines) > 1 else [], lines[2:])
+    counts = b" ".join(lines[:2]).split()[1:3]  # right after the keyword, on its line or the next
+    body = lines[1:] if len(first) > 1 else lines[2:]
     try:
         vertices, faces = int(counts[0]), int(counts[1])
     except (IndexError, ValueError):
