@@ -230,6 +230,35 @@ def test_a_cone_patch_over_a_round_rim_gets_its_corner_placement_from_the_points
     assert mr.result.energy < 1e-3 and angle_between(mr.result.rotation, turn) < 0.5
 
 
+@pytest.mark.parametrize("surface, seed", [("paraboloid", 2), ("ellipsoid", 1)])
+def test_a_pair_of_convex_hull_rims_is_held_to_the_pose_that_fits_its_points(surface, seed):
+    """Random points only, Delaunay (the rim is their convex hull: sliver triangles along it, the square's corners
+    cut off differently in each mesh): the whole registration's answers were 177 and 89 degrees off (residual 0.06)
+    at a lower E than the right match; the overlap check's pose fits the points, and its answer is kept."""
+    from meshreg.mesh.correspond import POSE_CHECK
+
+    def patch(uv):
+        x, y = 2 * uv[:, 0] - 1, 1.8 * uv[:, 1] - 0.7
+        if surface == "paraboloid":
+            return np.c_[x, y, 0.7 * x**2 + 0.2 * y**2 + 0.3 * x * y]
+        x, y = 1.6 * uv[:, 0] - 0.8, 1.6 * uv[:, 1] - 0.8
+        return np.c_[x, y, 1.2 * np.sqrt(1 - x**2 / 2.56 - y**2 / 1.69)]
+
+    rng = np.random.default_rng(seed)
+    uv1, uv2 = rng.uniform(0, 1, (1500, 2)), rng.uniform(0, 1, (3000, 2))
+    turn, scale = Rotation.random(random_state=seed + 7).as_matrix(), rng.uniform(0.5, 3.0)
+    shift = rng.normal(0, 2, 3)
+    first = patch(uv1), Delaunay(uv1).simplices
+    second = scale * patch(uv2) @ turn.T + shift, Delaunay(uv2).simplices
+    mr = register_meshes(first, second, Options(resolution=61))
+    check = mr.info["pose_check"]
+    assert check["kept"] == "pose" and check["residual"] > POSE_CHECK  # the whole answer did not fit the points
+    assert angle_between(mr.result.rotation, turn) < 0.5
+    matched = mr.result.correspondence()
+    off = np.linalg.norm(matched - (scale * first[0] @ turn.T + shift), axis=1) / scale
+    assert np.nanmedian(off) < 0.01 and np.mean(np.isnan(off)) < 0.05
+
+
 def test_face_scan_crop_with_holes_against_remeshed_copy():
     from meshreg.mesh.samples import face_scan_pair
 

@@ -8,7 +8,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..bending import preferred, register_bending
+from ..bending import RESIDUAL_GAIN, preferred, register_bending
 from ..correspondence import Side, inverse_uv
 from ..errors import InputError, RunError
 from ..forked import Forked, can_fork
@@ -18,7 +18,7 @@ from ..result import Registration, with_stage
 from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap, edge_length, given_corners
-from .overlap import rigid_overlap, warped_overlap
+from .overlap import rigid_match, rigid_overlap, warped_overlap
 from .partial import register_overlap
 from .resample import blur_grid, blur_sigma, resample_grid
 from .snap import snap_rigid
@@ -29,6 +29,14 @@ from .topology import DiskMesh, prepare_disk
 # 10k-triangle meshes 0.67 -> 0.64 (the child 0.07: hardly worth its copy-on-write faults), two 100k-triangle meshes
 # 1.6 -> 1.2-1.3 (the child 0.45-0.6).
 FORK_FACES = 50_000
+# a pair registered whole in mode "auto" (bend_window > 0) that the overlap check found to be one surface moved
+# rigidly (its pose makes the meshes coincide and the relief pins it) is held to the points: when the answer's
+# coordinate residual (area 1) is above POSE_CHECK, the common region is registered at the pose as well (as a rigid
+# overlap) and that answer kept if its residual is at most RESIDUAL_GAIN times the whole answer's. Meshes of random
+# points whose rims are their convex hulls (sliver triangles along the rim, the square's corners cut off differently
+# in each) had whole answers 88-177 degrees off with residuals 0.057-0.063 at lower E than the right match; right
+# answers of same-surface pairs measured 0.001-0.016 (docs/heldout.md, seventeenth session)
+POSE_CHECK = 0.01
 
 
 @dataclass
@@ -126,7 +134,40 @@ def register_meshes(
             return register_overlap(disks[0], disks[1], found, n_input, options, infos)
     whole.info["overlap"] = found.summary()
     timings = with_stage(whole.result.timings, "overlap", found.seconds)
-    return replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
+    whole = replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
+    return _held_to_the_pose(whole, disks, found, n_input, options, infos)
+
+
+def _held_to_the_pose(whole: MeshRegistration, disks, found, n_input, options: Options, infos: dict):
+    """``whole`` (the pair registered whole; ``found`` its overlap, regime "full") or, when the answer does not fit
+    the points (residual above POSE_CHECK) and ``found``'s pose pins a rigid match
+    (:func:`~meshreg.mesh.overlap.rigid_match`), the registration of the common region at the pose
+    (:func:`~meshreg.mesh.partial.register_overlap`) if it fits them RESIDUAL_GAIN times better. Tried as the snap is,
+    in mode "auto" with ``bend_window`` > 0 (``bend_window=0`` asks for the lowest E), and not when the user fixed the
+    corners or the symmetry. ``info["pose_check"]`` records the other
+    answer's E and residual and which was kept ("pose" or "whole"), or the error that left the whole answer
+    standing; the other answer's seconds are in ``timings["pose_check"]``."""
+    result, start = whole.result, time.perf_counter()
+    fixed = any(value is not None for value in (options.corners1, options.corners2, options.symmetry))
+    bending = options.mode == "auto" and options.bend_window > 0
+    if fixed or not bending or not result.residual > POSE_CHECK:
+        return whole
+    rigid = rigid_match(disks[0], disks[1], found)
+    if rigid is None:
+        return whole
+    try:
+        posed = register_overlap(disks[0], disks[1], rigid, n_input, options, infos)
+    except (InputError, RunError) as err:  # a common region too small to map, say: the whole answer stands
+        chosen, record = whole, {"error": str(err), "seconds": time.perf_counter() - start}
+    else:
+        keep = posed.result.residual <= RESIDUAL_GAIN * result.residual
+        chosen, other = (posed, whole) if keep else (whole, posed)
+        seconds = result.timings["total"] - found.seconds if keep else time.perf_counter() - start
+        record = {"kept": "pose" if keep else "whole", "energy": other.result.energy}
+        record.update(residual=other.result.residual, seconds=seconds)
+    info = {**chosen.info, "pose_check": record}
+    timings = with_stage(chosen.result.timings, "pose_check", record["seconds"])
+    return replace(chosen, info=info, result=replace(chosen.result, info=json_ready(info), timings=timings))
 
 
 def _prepared(meshes: list, options: Options) -> tuple[list[DiskMesh], list[HarmonicMap], dict]:

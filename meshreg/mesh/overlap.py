@@ -527,6 +527,26 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
     return Overlap(regime, one, two, alignment, posed.vertices, edges, spread, coincide, slid, seconds, reason, s1, s2)
 
 
+def rigid_match(first: DiskMesh, second: DiskMesh, found: Overlap) -> Overlap | None:
+    """``found`` (regime "full") as the rigid overlap at its pose that :func:`meshreg.mesh.partial.register_overlap`
+    registers, when the pose pins a rigid match as the "rigid" regime's must: RMS over the overlap at most TIGHT edge
+    lengths, :func:`slide` at most PINNED, and moved PROBE edge lengths along its weakest motion the RMS rises above
+    TIGHT (:func:`probed_rms`): one surface, moved rigidly and scaled, whose right correspondence is the pose's
+    closest points. Else None (a cone patch over a round rim: slide 0.74 but the probe 0.011 edge lengths; the pose
+    was 1.3 degrees off about the axis). Both sides are measured again at every vertex (the quick check of
+    :func:`same_region` holds samples)."""
+    edge = found.edge
+    if not (found.rms.get("pose", np.inf) <= TIGHT * edge and found.slide <= PINNED):
+        return None
+    posed = found.source.moved(found.alignment.matrix)
+    one, two, *_ = _sides(first, second, found.target, posed, edge)
+    inside = one.signed >= 0
+    probe = probed_rms(found.target.vertices[inside], _normal_matrix(found.target, inside), posed, PROBE * edge)
+    if not probe > TIGHT * edge:
+        return None
+    return replace(found, regime="rigid", first=one, second=two, rms={**found.rms, "probe": probe})
+
+
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
     """Regime "full" from a cheap look, or None when it does not show it (then :func:`rigid_overlap` runs the
     feature search): at the principal-axes pose (:func:`meshreg.mesh.align.axes_pose`), at most ``tolerance`` of
