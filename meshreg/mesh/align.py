@@ -56,6 +56,11 @@ SCORE_ENOUGH = 0.25  # a level ranks the poses when one of them scores this much
 SCORE_REACH = 2.0  # scored points lie within this many times the level (>= 1 edge length) of the other's vertices
 FINALISTS = 3  # candidates refined on every sample point
 SCALE_TIE = 0.05  # scales within this log ratio of one another are tried once
+# ... and a pose at scale 1 of a pair whose areas' ratio is within SCALE_TIE of 1 is also refined with a scale, ranked
+# when its score exceeds the rigid pose's by this much: a copy scaled by 0.96-0.98 (the rigid pose off by the scale),
+# not a crop in the same units of a gentle relief (its scale drifted to 1.001, closest points 0.05% of sqrt(area) off
+# where they were exact)
+SCALED_MARGIN = 0.1
 POINT_WEIGHT = 0.0  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
 AXES_TURNS = (0.0, 90.0)  # degrees: turns of the principal-axes poses about the third axis (axes_pose)
 UNIT_REFINED = 0.5  # axes_pose refines the pose at scale 1 when, coarsely, it scores this fraction of the best's
@@ -390,6 +395,7 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
     """
     rng = np.random.default_rng(RANSAC_SEED)
     scales = [1.0, areas_scale(first, second)]
+    near_unit = scales[1] != 1.0 and abs(np.log(scales[1])) <= SCALE_TIE  # posed at 1 only: ICP with a scale too
     if hint is not None:
         scales.append(float(np.cbrt(abs(np.linalg.det(hint[:3, :3])))))
     scales = [s for i, s in enumerate(scales) if all(abs(np.log(s / t)) > SCALE_TIE for t in scales[:i])]
@@ -416,20 +422,50 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
     cloud1 = voxel_sample(first, max(ICP_VOXEL * np.sqrt(first.area), first.edge))
     cloud2 = voxel_sample(second, max(ICP_VOXEL * np.sqrt(second.area), second.edge))
     coarse = _subsample(cloud2, COARSE_POINTS, rng)
-    poses = [icp(coarse, first, matrix)[0] for matrix, _ in candidates]
-    scores = [overlap_scores(cloud1, first, cloud2, second, m) for m in poses]
+    poses = _refined(coarse, first, candidates, near_unit)
+    scores = [overlap_scores(cloud1, first, cloud2, second, m) for m, *_ in poses]
     if max(score[0] for score in scores) < SCORE_ENOUGH:  # no feature pose coincides closely: try the axes too
+        poses += _refined(coarse, first, axes, near_unit, start=len(candidates))
         candidates += axes
-        poses += [icp(coarse, first, matrix)[0] for matrix, _ in axes]
-        scores += [overlap_scores(cloud1, first, cloud2, second, m) for m in poses[len(scores) :]]
+        scores += [overlap_scores(cloud1, first, cloud2, second, m) for m, *_ in poses[len(scores) :]]
     scores = np.array(scores)
-    order = np.argsort(-scores[:, _ranking(scores)], kind="stable")[:FINALISTS]
-    finals = [icp(cloud2, first, poses[k], iterations=ICP_FINE)[0] for k in order]
+    ranked = _scaled_ranked(poses, scores[:, _ranking(scores)])
+    order = np.argsort(-ranked, kind="stable")[:FINALISTS]
+    finals = [icp(cloud2, first, poses[k][0], iterations=ICP_FINE, scaled=poses[k][1])[0] for k in order]
     scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m in finals])
     best = int(np.argmax(scores[:, _ranking(scores)]))
     matrix, rms = icp(cloud2, first, finals[best], iterations=ICP_EXACT, exact=True)
     scores = overlap_scores(cloud1, first, cloud2, second, matrix)
-    return Alignment(matrix, rms, tuple(float(x) for x in scores), candidates[order[best]][1])
+    return Alignment(matrix, rms, tuple(float(x) for x in scores), candidates[poses[order[best]][2]][1])
+
+
+def _refined(coarse: Cloud, target: Surface, candidates: list, near_unit: bool, start: int = 0) -> list:
+    """Each candidate pose (``(matrix, source)``) refined by the coarse ICP, as (matrix, whether its scale was
+    refined too, the candidate's index from ``start``); when ``near_unit``, also by the coarse ICP with a scale, kept
+    when that scale stays within SCALE_TIE of 1 (ranked only if it coincides SCALED_MARGIN more than the rigid one:
+    :func:`_scaled_ranked`). A pair whose areas' ratio is within SCALE_TIE of 1 is posed at scale
+    1 only (a crop in the same units must not be blown up to the whole): one surface scaled by 0.98 then fitted a
+    half-turned pose over 80% of a sheet symmetric about an axis better than the right one over all of it
+    (docs/heldout.md, seventeenth session)."""
+    out = []
+    for k, (matrix, _) in enumerate(candidates, start):
+        out.append((icp(coarse, target, matrix)[0], False, k))
+        if near_unit:
+            refined = icp(coarse, target, matrix, scaled=True)[0]
+            if abs(np.log(np.cbrt(abs(np.linalg.det(refined[:3, :3]))))) <= SCALE_TIE:
+                out.append((refined, True, k))
+    return out
+
+
+def _scaled_ranked(poses: list, scores: np.ndarray) -> np.ndarray:
+    """The ``scores`` (c,) of the :func:`_refined` ``poses`` at the ranking level, those refined with a scale set to
+    -inf unless they exceed their rigid twin's by SCALED_MARGIN."""
+    rigid = {k: score for (_, scaled, k), score in zip(poses, scores, strict=True) if not scaled}
+    out = scores.astype(float)
+    for i, (_, scaled, k) in enumerate(poses):
+        if scaled and not scores[i] >= rigid[k] + SCALED_MARGIN:
+            out[i] = -np.inf
+    return out
 
 
 def axes_pose(first: Surface, second: Surface) -> Alignment | None:
