@@ -357,10 +357,15 @@ def distance_matrix(
 
 def collection_items(surfaces) -> list:
     """The members of a collection as a list; InputError for one surface given in place of a sequence of them (a
-    path, whose characters would be taken for files, or one grid array (M, N, 3), whose rows would)."""
+    path, whose characters would be taken for files; one grid array (M, N, 3), whose rows would; one mesh as
+    (vertices (n, 3), faces (m, 3)), whose vertices and faces would be two surfaces, each skipped)."""
     if isinstance(surfaces, (str, bytes, os.PathLike)) or (isinstance(surfaces, np.ndarray) and surfaces.ndim == 3):
         raise InputError(f"give a list of surfaces (paths, grids or meshes), not one {type(surfaces).__name__}")
-    return list(surfaces)
+    items = list(surfaces)
+    if len(items) == 2 and all(isinstance(x, np.ndarray) and x.ndim == 2 and x.shape[1:] == (3,) for x in items):
+        if np.issubdtype(items[1].dtype, np.integer) and not np.issubdtype(items[0].dtype, np.integer):
+            raise InputError("give a list of surfaces, not one mesh (vertices, faces): e.g. [(v1, f1), (v2, f2)]")
+    return items
 
 
 def run_checkpointed(

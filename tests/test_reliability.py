@@ -850,3 +850,5 @@ def test_mesh_inputs_that_crashed_deep_inside_get_clear_answers():
         register_meshes((v + 1e15, f), (v, f), Options(resolution=21))
     with pytest.raises(InputError, match="not one str"):
         distance_matrix("surfaces.npy")
+    with pytest.raises(InputError, match="not one mesh"):  # was a 2 x 2 matrix of two skipped "grids"
+        distance_matrix((v, f))
