@@ -237,6 +237,12 @@ def _mesh_notes(info: dict) -> list[str]:
             notes.append(f"{name} mesh: {info[name]['flipped']} triangles flipped by the parametrization")
     if "overlap" in info:
         notes.append(overlap_note(info["overlap"]))
+    if info.get("pose_check", {}).get("kept") == "pose":
+        whole = info["pose_check"]
+        notes.append(
+            f"registered at the overlap's pose: the whole registration did not fit the points (residual "
+            f"{whole['residual']:.4f}, E {whole['energy']:.4g}; docs/overlap.md)"
+        )
     return notes
 
 

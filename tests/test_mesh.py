@@ -236,6 +236,7 @@ def test_a_pair_of_convex_hull_rims_is_held_to_the_pose_that_fits_its_points(sur
     cut off differently in each mesh): the whole registration's answers were 177 and 89 degrees off (residual 0.06)
     at a lower E than the right match; the overlap check's pose fits the points, and its answer is kept."""
     from meshreg.mesh.correspond import POSE_CHECK
+    from meshreg.outputs import _mesh_notes
 
     def patch(uv):
         x, y = 2 * uv[:, 0] - 1, 1.8 * uv[:, 1] - 0.7
@@ -253,6 +254,7 @@ def test_a_pair_of_convex_hull_rims_is_held_to_the_pose_that_fits_its_points(sur
     mr = register_meshes(first, second, Options(resolution=61))
     check = mr.info["pose_check"]
     assert check["kept"] == "pose" and check["residual"] > POSE_CHECK  # the whole answer did not fit the points
+    assert any("registered at the overlap's pose" in note for note in _mesh_notes(mr.result.info))
     assert angle_between(mr.result.rotation, turn) < 0.5
     matched = mr.result.correspondence()
     off = np.linalg.norm(matched - (scale * first[0] @ turn.T + shift), axis=1) / scale
