@@ -183,12 +183,13 @@ class Advanced:
         a different shape, was 0.24 further.
     overlap_quick : float
         Meshes with ``Options.overlap`` "auto": before the feature search for a pose (FPFH + RANSAC), the meshes
-        are taken to cover the same region (overlap regime "full", registered whole) when, at the pose of their
-        principal axes refined by ICP, at most this fraction of each one's area (2000 random points spread
-        evenly) lies beyond the other's rim and 90% of the rest coincides with the other mesh
-        (:func:`meshreg.mesh.overlap.same_region`). At most 0.02 (the tolerance of the full check); 0 = always the
-        feature search. Default 0.01: two random triangulations of one terrain patch leave 0.04% and 0.002% beyond
-        the rims, a crop of 3% is not mistaken for the whole. Saves 1-1.5 s on two 100k-triangle meshes.
+        are taken to cover the same region (overlap regime "full", registered whole, then held to the pose if the
+        answer does not fit the points: docs/overlap.md) when, at the pose of their principal axes refined by ICP,
+        at most this fraction of each one's area (2000 random points spread evenly) lies beyond the other's rim and
+        90% of the rest coincides with the other mesh (:func:`meshreg.mesh.overlap.same_region`). At most 0.02
+        (the tolerance of the full check); 0 = always the feature search. Default 0.01: two random triangulations
+        of one terrain patch leave 0.04% and 0.002% beyond the rims, a crop of 3% is not mistaken for the whole.
+        Saves 1-1.5 s on two 100k-triangle meshes.
     processes : int
         Processes one registration may keep busy at once. With 2, a pair of meshes (together at least
         ``meshreg.mesh.correspond.FORK_FACES`` triangles) gets its corners and maps to the square computed in a

@@ -230,13 +230,9 @@ def test_a_cone_patch_over_a_round_rim_gets_its_corner_placement_from_the_points
     assert mr.result.energy < 1e-3 and angle_between(mr.result.rotation, turn) < 0.5
 
 
-@pytest.mark.parametrize("surface, seed", [("paraboloid", 2), ("ellipsoid", 1)])
-def test_a_pair_of_convex_hull_rims_is_held_to_the_pose_that_fits_its_points(surface, seed):
-    """Random points only, Delaunay (the rim is their convex hull: sliver triangles along it, the square's corners
-    cut off differently in each mesh): the whole registration's answers were 177 and 89 degrees off (residual 0.06)
-    at a lower E than the right match; the overlap check's pose fits the points, and its answer is kept."""
-    from meshreg.mesh.correspond import POSE_CHECK
-    from meshreg.outputs import _mesh_notes
+def _hull_pair(surface: str, seed: int):
+    """Two meshes of a patch made of random points only (1,500 and 3,000; Delaunay: their rims are convex hulls), the
+    second turned, scaled and shifted: (first, second, turn, scale, shift)."""
 
     def patch(uv):
         x, y = 2 * uv[:, 0] - 1, 1.8 * uv[:, 1] - 0.7
@@ -250,7 +246,18 @@ def test_a_pair_of_convex_hull_rims_is_held_to_the_pose_that_fits_its_points(sur
     turn, scale = Rotation.random(random_state=seed + 7).as_matrix(), rng.uniform(0.5, 3.0)
     shift = rng.normal(0, 2, 3)
     first = patch(uv1), Delaunay(uv1).simplices
-    second = scale * patch(uv2) @ turn.T + shift, Delaunay(uv2).simplices
+    return first, (scale * patch(uv2) @ turn.T + shift, Delaunay(uv2).simplices), turn, scale, shift
+
+
+@pytest.mark.parametrize("surface, seed", [("paraboloid", 2), ("ellipsoid", 1)])
+def test_a_pair_of_convex_hull_rims_is_held_to_the_pose_that_fits_its_points(surface, seed):
+    """Random points only, Delaunay (the rim is their convex hull: sliver triangles along it, the square's corners
+    cut off differently in each mesh): the whole registration's answers were 177 and 89 degrees off (residual 0.05)
+    at a lower E than the right match; the overlap check's pose fits the points, and its answer is kept."""
+    from meshreg.mesh.correspond import POSE_CHECK
+    from meshreg.outputs import _mesh_notes
+
+    first, second, turn, scale, shift = _hull_pair(surface, seed)
     mr = register_meshes(first, second, Options(resolution=61))
     check = mr.info["pose_check"]
     assert check["kept"] == "pose" and check["residual"] > POSE_CHECK  # the whole answer did not fit the points
@@ -259,6 +266,28 @@ def test_a_pair_of_convex_hull_rims_is_held_to_the_pose_that_fits_its_points(sur
     matched = mr.result.correspondence()
     off = np.linalg.norm(matched - (scale * first[0] @ turn.T + shift), axis=1) / scale
     assert np.nanmedian(off) < 0.01 and np.mean(np.isnan(off)) < 0.05
+
+
+def test_the_pose_check_leaves_the_whole_answer_when_the_pose_does_not_fit_better_or_fails(monkeypatch):
+    """The branches of correspond._held_to_the_pose that the hull pairs do not take: the answer at the pose kept only
+    when its residual is at most RESIDUAL_GAIN times the whole one's, and an error in it leaving the whole answer."""
+    import meshreg.mesh.correspond as correspond
+
+    first, second, *_ = _hull_pair("paraboloid", 2)
+    monkeypatch.setattr(correspond, "RESIDUAL_GAIN", 0.0)
+    mr = register_meshes(first, second, Options(resolution=61))
+    check = mr.info["pose_check"]
+    assert (
+        check["kept"] == "whole" and check["residual"] < mr.result.residual and mr.info["overlap"]["regime"] == "full"
+    )
+    assert mr.result.timings["total"] >= mr.result.timings["pose_check"] > 0
+
+    def fails(*args, **kwargs):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(correspond, "register_overlap", fails)
+    mr = register_meshes(first, second, Options(resolution=61))
+    assert mr.info["pose_check"] == {"error": "Singular matrix"} and mr.info["overlap"]["regime"] == "full"
 
 
 def test_face_scan_crop_with_holes_against_remeshed_copy():

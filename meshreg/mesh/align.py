@@ -11,9 +11,10 @@ the first's frame. This module finds it without any start (the meshes may come i
    hint (e.g. the elastic registration's similarity); and, unless one of those already coincides closely after ICP
    (a score of SCORE_ENOUGH at the tightest of SCORE_LEVELS: the same surface), the principal axes of both meshes
    times the 24 rotations of the cube;
-2. each refined by a trimmed ICP (point-to-plane, with scale), which drops pairs beyond a robust distance, pairs
-   whose closest point is on the other mesh's rim (the part of one scan that the other does not cover) and pairs
-   whose normals disagree;
+2. each refined by a trimmed ICP (point-to-plane, rigid: the candidate's scale is kept; a pair whose areas' ratio is
+   within SCALE_TIE of 1, posed at scale 1 only, is also refined with a scale), which drops pairs beyond a robust
+   distance, pairs whose closest point is on the other mesh's rim (the part of one scan that the other does not
+   cover) and pairs whose normals disagree;
 3. ranked by the overlap they give: the sampled area of both meshes within :data:`SCORE_DISTANCE` edge lengths of
    the other with normals agreeing and away from its rim, then by the trimmed RMS. A wrong pose of a nearly flat
    sheet can have a small RMS, but it puts less area within that distance than the right one.
@@ -24,6 +25,7 @@ numpy/scipy, the FPFH histograms in numba; deterministic (seeded).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -45,7 +47,7 @@ RANSAC_DISTANCE = 1.5  # a match is explained within this many voxels
 RANSAC_KEEP = 4  # best RANSAC poses refined per scale and orientation
 RANSAC_SEED = 0
 ICP_COARSE = 10  # ICP iterations of every candidate (COARSE_POINTS points, nearest vertices' tangent planes)
-ICP_FINE = 20  # ICP iterations of the best candidates (every sample point, with and without scale)
+ICP_FINE = 20  # ICP iterations of the best candidates (every sample point)
 ICP_EXACT = 10  # ICP iterations of the best pose against the triangles (exact closest points)
 COARSE_POINTS = 500
 ICP_TRIM = 2.5  # pairs farther than this times the median distance are dropped
@@ -56,10 +58,10 @@ SCORE_ENOUGH = 0.25  # a level ranks the poses when one of them scores this much
 SCORE_REACH = 2.0  # scored points lie within this many times the level (>= 1 edge length) of the other's vertices
 FINALISTS = 3  # candidates refined on every sample point
 SCALE_TIE = 0.05  # scales within this log ratio of one another are tried once
-# ... and a pose at scale 1 of a pair whose areas' ratio is within SCALE_TIE of 1 is also refined with a scale, ranked
-# when its score exceeds the rigid pose's by this much: a copy scaled by 0.96-0.98 (the rigid pose off by the scale),
-# not a crop in the same units of a gentle relief (its scale drifted to 1.001, closest points 0.05% of sqrt(area) off
-# where they were exact)
+# ... and a pose at scale 1 of a pair whose areas' ratio is within SCALE_TIE of 1 is also refined with a scale, kept
+# when its score at the tightest level exceeds the rigid pose's by this much: a copy scaled by 0.96-0.98 (the rigid
+# pose off by the scale), not a crop in the same units of a gentle relief (its scale drifted to 1.001, closest points
+# 0.05% of sqrt(area) off where they were exact) nor a noisy 97% crop (taken for the whole)
 SCALED_MARGIN = 0.1
 POINT_WEIGHT = 0.0  # weight of the point-to-point distances beside the point-to-plane ones in an ICP step
 AXES_TURNS = (0.0, 90.0)  # degrees: turns of the principal-axes poses about the third axis (axes_pose)
@@ -422,50 +424,66 @@ def align(first: Surface, second: Surface, hint: np.ndarray | None = None) -> Al
     cloud1 = voxel_sample(first, max(ICP_VOXEL * np.sqrt(first.area), first.edge))
     cloud2 = voxel_sample(second, max(ICP_VOXEL * np.sqrt(second.area), second.edge))
     coarse = _subsample(cloud2, COARSE_POINTS, rng)
-    poses = _refined(coarse, first, candidates, near_unit)
-    scores = [overlap_scores(cloud1, first, cloud2, second, m) for m, *_ in poses]
+    poses, scores = _refined(coarse, first, candidates, near_unit, (cloud1, cloud2, second))
     if max(score[0] for score in scores) < SCORE_ENOUGH:  # no feature pose coincides closely: try the axes too
-        poses += _refined(coarse, first, axes, near_unit, start=len(candidates))
-        candidates += axes
-        scores += [overlap_scores(cloud1, first, cloud2, second, m) for m, *_ in poses[len(scores) :]]
+        more, more_scores = _refined(coarse, first, axes, near_unit, (cloud1, cloud2, second), len(candidates))
+        candidates, poses, scores = candidates + axes, poses + more, scores + more_scores
     scores = np.array(scores)
-    ranked = _scaled_ranked(poses, scores[:, _ranking(scores)])
-    order = np.argsort(-ranked, kind="stable")[:FINALISTS]
-    finals = [icp(cloud2, first, poses[k][0], iterations=ICP_FINE, scaled=poses[k][1])[0] for k in order]
+    order = np.argsort(-scores[:, _ranking(scores)], kind="stable")[:FINALISTS]
+    finals = [_fine(cloud2, first, poses[k]) for k in order]
     scores = np.array([overlap_scores(cloud1, first, cloud2, second, m) for m in finals])
     best = int(np.argmax(scores[:, _ranking(scores)]))
     matrix, rms = icp(cloud2, first, finals[best], iterations=ICP_EXACT, exact=True)
     scores = overlap_scores(cloud1, first, cloud2, second, matrix)
-    return Alignment(matrix, rms, tuple(float(x) for x in scores), candidates[poses[order[best]][2]][1])
+    return Alignment(matrix, rms, tuple(float(x) for x in scores), candidates[poses[order[best]].candidate][1])
 
 
-def _refined(coarse: Cloud, target: Surface, candidates: list, near_unit: bool, start: int = 0) -> list:
-    """Each candidate pose (``(matrix, source)``) refined by the coarse ICP, as (matrix, whether its scale was
-    refined too, the candidate's index from ``start``); when ``near_unit``, also by the coarse ICP with a scale, kept
-    when that scale stays within SCALE_TIE of 1 (ranked only if it coincides SCALED_MARGIN more than the rigid one:
-    :func:`_scaled_ranked`). A pair whose areas' ratio is within SCALE_TIE of 1 is posed at scale
-    1 only (a crop in the same units must not be blown up to the whole): one surface scaled by 0.98 then fitted a
-    half-turned pose over 80% of a sheet symmetric about an axis better than the right one over all of it
-    (docs/heldout.md, seventeenth session)."""
-    out = []
+class Refined(NamedTuple):
+    """A candidate pose after the coarse ICP: its matrix (4, 4), whether its scale was refined too, and the index of
+    the candidate it came from."""
+
+    matrix: np.ndarray
+    scaled: bool
+    candidate: int
+
+
+def _refined(coarse: Cloud, target: Surface, candidates: list, near_unit: bool, scoring: tuple, start: int = 0):
+    """Each candidate pose (``(matrix, source)``) refined by the coarse ICP and scored (:func:`overlap_scores` with
+    ``scoring`` = (first's cloud, second's cloud, second surface)): the :class:`Refined` poses and their scores. When
+    ``near_unit``, each is also refined by the coarse ICP with a scale, and that pose kept when its scale stays within
+    SCALE_TIE of 1 and it scores SCALED_MARGIN above the rigid one at the tightest level. A pair whose areas' ratio is
+    within SCALE_TIE of 1 is posed at scale 1 only (a crop in the same units must not be blown up to the whole): one
+    surface scaled by 0.98 then fitted a half-turned pose over 80% of a sheet symmetric about an axis better than the
+    right one over all of it (docs/heldout.md, seventeenth session)."""
+    cloud1, cloud2, second = scoring
+    poses, scores = [], []
     for k, (matrix, _) in enumerate(candidates, start):
-        out.append((icp(coarse, target, matrix)[0], False, k))
+        rigid = icp(coarse, target, matrix)[0]
+        poses.append(Refined(rigid, False, k))
+        scores.append(overlap_scores(cloud1, target, cloud2, second, rigid))
         if near_unit:
-            refined = icp(coarse, target, matrix, scaled=True)[0]
-            if abs(np.log(np.cbrt(abs(np.linalg.det(refined[:3, :3]))))) <= SCALE_TIE:
-                out.append((refined, True, k))
-    return out
+            scaled = icp(coarse, target, matrix, scaled=True)[0]
+            if _near_unit(scaled):
+                score = overlap_scores(cloud1, target, cloud2, second, scaled)
+                if score[0] >= scores[-1][0] + SCALED_MARGIN:
+                    poses.append(Refined(scaled, True, k))
+                    scores.append(score)
+    return poses, scores
 
 
-def _scaled_ranked(poses: list, scores: np.ndarray) -> np.ndarray:
-    """The ``scores`` (c,) of the :func:`_refined` ``poses`` at the ranking level, those refined with a scale set to
-    -inf unless they exceed their rigid twin's by SCALED_MARGIN."""
-    rigid = {k: score for (_, scaled, k), score in zip(poses, scores, strict=True) if not scaled}
-    out = scores.astype(float)
-    for i, (_, scaled, k) in enumerate(poses):
-        if scaled and not scores[i] >= rigid[k] + SCALED_MARGIN:
-            out[i] = -np.inf
-    return out
+def _fine(cloud: Cloud, target: Surface, pose: Refined) -> np.ndarray:
+    """A finalist refined by the fine ICP, with a scale if the coarse one had it (rigid again if that leaves SCALE_TIE
+    of 1: the drift docs/overlap.md measured on partial sheets)."""
+    if pose.scaled:
+        matrix = icp(cloud, target, pose.matrix, iterations=ICP_FINE, scaled=True)[0]
+        if _near_unit(matrix):
+            return matrix
+    return icp(cloud, target, pose.matrix, iterations=ICP_FINE)[0]
+
+
+def _near_unit(matrix: np.ndarray) -> bool:
+    """Whether the similarity ``matrix`` (4, 4) scales by a factor within SCALE_TIE of 1 (NaN: no)."""
+    return bool(abs(np.log(np.cbrt(abs(np.linalg.det(matrix[:3, :3]))))) <= SCALE_TIE)
 
 
 def axes_pose(first: Surface, second: Surface) -> Alignment | None:

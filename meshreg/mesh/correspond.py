@@ -18,7 +18,7 @@ from ..result import Registration, with_stage
 from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap, edge_length, given_corners
-from .overlap import rigid_match, rigid_overlap, warped_overlap
+from .overlap import Overlap, rigid_match, rigid_overlap, warped_overlap
 from .partial import register_overlap
 from .resample import blur_grid, blur_sigma, resample_grid
 from .snap import snap_rigid
@@ -133,42 +133,56 @@ def register_meshes(
         if found.regime in ("rigid", "elastic"):
             return register_overlap(disks[0], disks[1], found, n_input, options, infos)
     whole.info["overlap"] = found.summary()
+    whole.info["overlap"]["parameters"]["POSE_CHECK"] = POSE_CHECK
     timings = with_stage(whole.result.timings, "overlap", found.seconds)
     whole = replace(whole, result=replace(whole.result, info=json_ready(whole.info), timings=timings))
     return _held_to_the_pose(whole, disks, found, n_input, options, infos)
 
 
-def _held_to_the_pose(whole: MeshRegistration, disks, found, n_input, options: Options, infos: dict):
+def _held_to_the_pose(
+    whole: MeshRegistration, disks: list[DiskMesh], found: Overlap, n_input: tuple[int, int], options: Options, infos
+) -> MeshRegistration:
     """``whole`` (the pair registered whole; ``found`` its overlap, regime "full") or, when the answer does not fit
     the points (residual above POSE_CHECK) and ``found``'s pose pins a rigid match
     (:func:`~meshreg.mesh.overlap.rigid_match`), the registration of the common region at the pose
-    (:func:`~meshreg.mesh.partial.register_overlap`) if it fits them RESIDUAL_GAIN times better. Tried where the snap
-    is, in mode "auto" with ``bend_window`` > 0 (``bend_window=0`` asks for the lowest E), and not when the user fixed
-    the corners or the symmetry. ``info["pose_check"]`` records which answer was kept ("pose" or "whole") and the
-    other's E and residual, or the error that left the whole answer standing; ``timings["pose_check"]`` (in the
-    total) the seconds not in the kept answer's own stages."""
+    (:func:`~meshreg.mesh.partial.register_overlap`: regime "rigid", vertices outside the common region unmatched) if
+    it fits them RESIDUAL_GAIN times better. Tried where the snap is, in mode "auto" with ``bend_window`` > 0
+    (``bend_window=0`` asks for the lowest E), and not when the user fixed the corners or the symmetry.
+    ``info["pose_check"]`` records which answer was kept ("pose" or "whole") and the other's E and residual, or the
+    error that left the whole answer standing; ``timings["pose_check"]`` (in the total) the seconds not in the kept
+    answer's own stages."""
     result, start = whole.result, time.perf_counter()
     fixed = any(value is not None for value in (options.corners1, options.corners2, options.symmetry))
-    bending = options.mode == "auto" and options.bend_window > 0
-    if fixed or not bending or not result.residual > POSE_CHECK:
+    if fixed or not _bending(options) or not result.residual > POSE_CHECK:
         return whole
     rigid = rigid_match(disks[0], disks[1], found)
     if rigid is None:
         return whole
-    matched = time.perf_counter()
+    matched_at = time.perf_counter()
     try:
         posed = register_overlap(disks[0], disks[1], rigid, n_input, options, infos)
-    except (InputError, RunError) as err:  # a common region too small to map, say: the whole answer stands
+    except (ValueError, RuntimeError) as err:  # a common region too small to map, say: the whole answer stands
         chosen, record, seconds = whole, {"error": str(err)}, time.perf_counter() - start
     else:
         keep = posed.result.residual <= RESIDUAL_GAIN * result.residual
         chosen, other = (posed, whole) if keep else (whole, posed)
         record = {"kept": "pose" if keep else "whole", "energy": other.result.energy, "residual": other.result.residual}
         registered = result.timings["total"] - found.seconds  # the whole registration, without the overlap check
-        seconds = registered + matched - start if keep else time.perf_counter() - start
-    info = {**chosen.info, "pose_check": record}
-    timings = with_stage(chosen.result.timings, "pose_check", seconds)
+        seconds = registered + matched_at - start if keep else time.perf_counter() - start
+    return _with_info(chosen, {**chosen.info, "pose_check": record}, "pose_check", seconds)
+
+
+def _with_info(chosen: MeshRegistration, info: dict, stage: str, seconds: float) -> MeshRegistration:
+    """``chosen`` with ``info`` as its report (and its result's) and ``seconds`` recorded as ``stage`` (in the
+    total): the answer kept by a comparison, with what the comparison cost."""
+    timings = with_stage(chosen.result.timings, stage, seconds)
     return replace(chosen, info=info, result=replace(chosen.result, info=json_ready(info), timings=timings))
+
+
+def _bending(options: Options) -> bool:
+    """Whether the pair is registered by :func:`meshreg.bending.register_bending` (mode "auto", ``bend_window`` >
+    0), and its answer snapped to closest points when the meshes are one rigid surface."""
+    return options.mode == "auto" and options.bend_window > 0
 
 
 def _prepared(meshes: list, options: Options) -> tuple[list[DiskMesh], list[HarmonicMap], dict]:
@@ -308,8 +322,7 @@ def _placement_kept(whole: MeshRegistration, register_moved, start: float) -> Me
         record = {"energy": left.energy, "residual": left.residual, "kept": bool(kept), "seconds": seconds}
     chosen = answers[kept]
     info = {**chosen.info, "second": {**chosen.info["second"], "other_placement": record}}
-    timings = with_stage(chosen.result.timings, "other_placement", seconds)
-    return replace(chosen, info=info, result=replace(chosen.result, info=json_ready(info), timings=timings))
+    return _with_info(chosen, info, "other_placement", seconds)
 
 
 def _registered(disks, uvs, n_input, infos, options: Options, callback, pinned, surfaces) -> MeshRegistration:
@@ -319,7 +332,7 @@ def _registered(disks, uvs, n_input, infos, options: Options, callback, pinned, 
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
     sigma, used = 0.0, grids
-    bending = options.mode == "auto" and options.bend_window > 0
+    bending = _bending(options)
     if bending:
         edges = [edge_length(d.faces, uv) for d, uv in zip(disks, uvs, strict=True)]
         finest = options.advanced.refine_triangles * np.mean(edges)

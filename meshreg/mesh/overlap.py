@@ -71,10 +71,10 @@ PINNED = 1.0
 PROBE = 10.0
 PROBE_HALVINGS = 3  # the probe's distance is halved up to this many times while the overlap is too narrow for it
 # a pose above TIGHT (vertex noise: the warp fits no closer) is pinned when the probe raises its RMS above this many
-# times the pose's own: 3.1-3.4 on centred crops of a relief sheet with vertex noise 0.003 (80-97%), 1.24-1.29 on a
-# nearly flat square with one round bump and noise of 0.2% of its diagonal on one mesh (turned 2-23 degrees about the
-# bump, 86-95% overlaps: registered whole, as without the noise)
-PROBE_RISE = 2.0
+# times the pose's own: 3.1-3.5 on centred crops of a relief sheet with vertex noise 0.003 (80-97%), 2.03-2.04 with
+# noise 0.006 (80%), 1.24-1.29 on a nearly flat square with one round bump and noise of 0.2% of its diagonal on one
+# mesh (turned 2-23 degrees about the bump, 86-95% overlaps: registered whole, as without the noise); between the two
+PROBE_RISE = 1.6
 UNPINNED = "the relief does not pin the pose: the meshes slide along each other"
 # a partial overlap that the warp finds in the meshes' own units (scale 1), when their areas differ, stands only when
 # it fits this many times closer (RMS over the overlap in each warp's edge lengths) than the warp at the scale of the
@@ -202,7 +202,8 @@ def parameters() -> dict:
     from . import align, warp
 
     names = {
-        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH", "AXES_TURNS"),
+        align: ("FEATURE_VOXEL", "RANSAC_TRIALS", "ICP_TRIM", "SCORE_LEVELS", "SCORE_ENOUGH", "AXES_TURNS")
+        + ("SCALE_TIE", "SCALED_MARGIN"),
         warp: ("WARP_WEIGHTS", "WARP_ROUNDS", "WARP_TRIM", "WARP_TRIM_FLOOR", "WARP_TURN"),
     }
     out = {name: getattr(module, name) for module, keys in names.items() for name in keys}
@@ -521,7 +522,7 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
     if rms <= TIGHT * edge:
         regime, reason = _verdict("rigid", one, two, coincide, alignment.scale, slid, edges)
         if regime == "rigid":
-            spread["probe"] = probed_rms(s1.vertices[inside], system, posed, PROBE * edge)
+            spread["probe"] = _probe(s1, inside, posed, edge, system)
             # unpinned only when the probe shows it: NaN (a narrow overlap) leaves the verdict to the slide
             regime, reason = ("whole", UNPINNED) if spread["probe"] <= TIGHT * edge else ("rigid", "")
     elif _verdict("rigid", one, two, coincide, alignment.scale, slid, edges)[0] == "full":
@@ -534,27 +535,31 @@ def rigid_overlap(first: DiskMesh, second: DiskMesh, quick: float = 0.0) -> Over
 
 def rigid_match(first: DiskMesh, second: DiskMesh, found: Overlap) -> Overlap | None:
     """``found`` (regime "full") as the rigid overlap at its pose that :func:`meshreg.mesh.partial.register_overlap`
-    registers, when the pose pins a rigid match as the "rigid" regime's must: RMS over the overlap at most TIGHT edge
-    lengths, :func:`slide` at most PINNED, and moved PROBE edge lengths along its weakest motion the RMS rises above
-    TIGHT (:func:`probed_rms`): one surface, moved rigidly and scaled, whose right correspondence is the pose's
-    closest points. Else None (a cone patch over a round rim: slide 0.74 but the probe 0.011 edge lengths; the pose
-    was 1.3 degrees off about the axis). Both sides are measured again at every vertex (the quick check of
-    :func:`same_region` holds samples)."""
+    registers, when the pose pins a rigid match: RMS over the overlap at most TIGHT edge lengths, :func:`slide` at
+    most PINNED, and moved PROBE edge lengths along its weakest motion the RMS rises above TIGHT
+    (:func:`probed_rms`): one surface, moved rigidly and scaled, whose right correspondence is the pose's closest
+    points. Else None: another regime, or a probe that cannot tell (NaN; :func:`rigid_overlap` leaves such a verdict
+    to the slide, this check does not trust it), or one that shows a slide (a cone patch over a round rim: slide 0.74
+    but the probe 0.011 edge lengths; the pose was 1.3 degrees off about the axis). Both sides, the RMS and the
+    coincidence are measured again at every vertex (the quick check of :func:`same_region` holds samples)."""
     edge = found.edge
-    if not (found.rms.get("pose", np.inf) <= TIGHT * edge and found.slide <= PINNED):
+    if not (found.regime == "full" and found.rms["pose"] <= TIGHT * edge and found.slide <= PINNED):
         return None
-    one, two, *_ = _sides(first, second, found.target, found.source.moved(found.alignment.matrix), edge)
-    rigid = replace(found, regime="rigid", first=one, second=two)
-    probe = _probe(rigid)
-    return replace(rigid, rms={**found.rms, "probe": probe}) if probe > TIGHT * edge else None
-
-
-def _probe(found: Overlap) -> float:
-    """:func:`probed_rms` of ``found``'s pose: the first's vertices inside the overlap moved PROBE edge lengths along
-    its weakest motion, their RMS distance to the posed second (its :class:`Side` measured at every vertex)."""
-    inside = found.first.signed >= 0
     posed = found.source.moved(found.alignment.matrix)
-    return probed_rms(found.target.vertices[inside], _normal_matrix(found.target, inside), posed, PROBE * found.edge)
+    one, two, rms, coincide = _sides(first, second, found.target, posed, edge)
+    probe = _probe(found.target, one.signed >= 0, posed, edge)
+    if not (rms <= TIGHT * edge and probe > TIGHT * edge):
+        return None
+    rms = {**found.rms, "pose": rms, "probe": probe}
+    return replace(found, regime="rigid", first=one, second=two, rms=rms, coincide=coincide)
+
+
+def _probe(target: Surface, inside: np.ndarray, posed: Surface, edge: float, system=None) -> float:
+    """:func:`probed_rms` of a pose: the ``target``'s vertices ``inside`` (bool, (n,)) the overlap moved PROBE
+    ``edge`` lengths along their weakest motion (of ``system``, :func:`_normal_matrix`, computed when not given),
+    their RMS distance to the ``posed`` other mesh."""
+    system = _normal_matrix(target, inside) if system is None else system
+    return probed_rms(target.vertices[inside], system, posed, PROBE * edge)
 
 
 def same_region(first: Surface, second: Surface, tolerance: float, start: float | None = None) -> Overlap | None:
@@ -606,7 +611,8 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
     The warp starts from the pose that fits the second (at the scale of ``posed``) onto ``matches``, its vertices'
     matches on the first by the elastic registration of the whole meshes: that pose centres a bent mesh where a
     rigid fit settles on one side. When the warp does not bring the meshes much closer than the pose (RMS within
-    RIGID_RATIO), the pose stands (regime "rigid": noise, not deformation). The scale of a pose that no rigid motion
+    RIGID_RATIO), the pose stands (regime "rigid": noise, not deformation) if the relief pins it (the slide, and the
+    probe raising the RMS above PROBE_RISE times the pose's own; else "whole"). The scale of a pose that no rigid motion
     makes coincide is a guess, so a partial overlap in the meshes' own units (scale 1) stands only when it fits
     clearly better than the warp at the scale of the meshes' areas' ratio, one surface in two units
     (:func:`_by_units`; a partial verdict needs the meshes' own units, so the reverse is not tried).
@@ -626,7 +632,8 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
         regime, reason = _verdict("rigid", one, two, coincide, posed.alignment.scale, posed.slide, posed.edges)
         rms = found.rms
         if regime == "rigid":  # a noisy pose: pinned when moving it raises its RMS well above the noise's
-            rms = {**rms, "probe": _probe(posed)}
+            moved = posed.source.moved(posed.alignment.matrix)
+            rms = {**rms, "probe": _probe(posed.target, posed.first.signed >= 0, moved, posed.edge)}
             regime, reason = ("whole", UNPINNED) if rms["probe"] <= PROBE_RISE * rms["pose"] else (regime, reason)
         found = replace(posed, regime=regime, reason=reason, rms=rms)
     elif found.regime == "elastic" and (areas := _areas_scale(posed)) is not None:
