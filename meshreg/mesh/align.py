@@ -447,7 +447,9 @@ class Refined(NamedTuple):
     candidate: int
 
 
-def _refined(coarse: Cloud, target: Surface, candidates: list, near_unit: bool, scoring: tuple, start: int = 0):
+def _refined(
+    coarse: Cloud, target: Surface, candidates: list, near_unit: bool, scoring: tuple, start: int = 0
+) -> tuple[list[Refined], list[np.ndarray]]:
     """Each candidate pose (``(matrix, source)``) refined by the coarse ICP and scored (:func:`overlap_scores` with
     ``scoring`` = (first's cloud, second's cloud, second surface)): the :class:`Refined` poses and their scores. When
     ``near_unit``, each is also refined by the coarse ICP with a scale, and that pose kept when its scale stays within
