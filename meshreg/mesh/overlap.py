@@ -540,15 +540,17 @@ def rigid_match(first: DiskMesh, second: DiskMesh, found: Overlap) -> Overlap | 
     (:func:`probed_rms`): one surface, moved rigidly and scaled, whose right correspondence is the pose's closest
     points. Else None: another regime, or a probe that cannot tell (NaN; :func:`rigid_overlap` leaves such a verdict
     to the slide, this check does not trust it), or one that shows a slide (a cone patch over a round rim: slide 0.74
-    but the probe 0.011 edge lengths; the pose was 1.3 degrees off about the axis). Both sides, the RMS and the
-    coincidence are measured again at every vertex (the quick check of :func:`same_region` holds samples)."""
+    but the probe 0.011 edge lengths; the pose was 1.3 degrees off about the axis). The RMS judged is the one the
+    verdict "full" was made with; both sides, the RMS and the coincidence are then measured again at every vertex
+    (the quick check of :func:`same_region` holds samples: a round-rim Enneper patch measured 0.041 edge lengths on
+    its samples, 0.055 over its vertices, and its pose was right within 0.06 degrees)."""
     edge = found.edge
     if not (found.regime == "full" and found.rms["pose"] <= TIGHT * edge and found.slide <= PINNED):
         return None
     posed = found.source.moved(found.alignment.matrix)
     one, two, rms, coincide = _sides(first, second, found.target, posed, edge)
     probe = _probe(found.target, one.signed >= 0, posed, edge)
-    if not (rms <= TIGHT * edge and probe > TIGHT * edge):
+    if not probe > TIGHT * edge:
         return None
     rms = {**found.rms, "pose": rms, "probe": probe}
     return replace(found, regime="rigid", first=one, second=two, rms=rms, coincide=coincide)
