@@ -174,6 +174,11 @@ def register_with(first, second, options: Options, callback: Progress | None = N
         from .mesh.correspond import register_meshes
 
         return register_meshes(a, b, options, callback).result
+    if options.corners1 is not None or options.corners2 is not None:
+        raise InputError(
+            "corners1 and corners2 are vertex ids of meshes; a grid's corners are its own: give symmetry= (0-7) to "
+            "fix which corner of the second grid matches which of the first"
+        )
     return replace(register_grids(a, b, options, callback), first=Side.from_grid(a), second=Side.from_grid(b))
 
 

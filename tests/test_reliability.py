@@ -852,3 +852,6 @@ def test_mesh_inputs_that_crashed_deep_inside_get_clear_answers():
         distance_matrix("surfaces.npy")
     with pytest.raises(InputError, match="not one mesh"):  # was a 2 x 2 matrix of two skipped "grids"
         distance_matrix((v, f))
+    grid = sample(bump(), 21, 21)
+    with pytest.raises(InputError, match="corners1 and corners2 are vertex ids of meshes"):  # were ignored for grids
+        meshreg.register(grid, grid, corners1=(0, 1, 2, 3))
