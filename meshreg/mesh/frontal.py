@@ -553,6 +553,9 @@ class MultifrontalLU:
         Its pattern should be (nearly) symmetric: the fronts follow the pattern of A + A^T.
     analysis : Analysis, optional
         The symbolic analysis (:func:`analyse`) of a pattern that holds A's; of A itself by default.
+    rows : csr_matrix (n, n), optional
+        A again, by rows (its column indices in any order), when the caller has it: spares converting A (0.14 s
+        for the interior block of a 1M-triangle mesh, after the analysis, on the front end's critical path).
 
     Raises
     ------
@@ -571,13 +574,13 @@ class MultifrontalLU:
     True
     """
 
-    def __init__(self, a: sp.spmatrix, analysis: Analysis | None = None):
+    def __init__(self, a: sp.spmatrix, analysis: Analysis | None = None, rows: sp.csr_matrix | None = None):
         a = sp.csc_matrix(a, dtype=float)
         self.analysis = analysis = analyse(a) if analysis is None else analysis
         if a.shape != (analysis.n, analysis.n):
             raise ValueError(f"a matrix of shape {a.shape} for an analysis of {analysis.n} unknowns")
         csc = (a.indptr, a.indices, a.data)
-        rows_major = a.tocsr()
+        rows_major = a.tocsr() if rows is None else sp.csr_matrix(rows, dtype=float)
         csr = (rows_major.indptr, rows_major.indices, rows_major.data)
         first, off = analysis.first, analysis.off
         ns, nu = np.diff(first), np.diff(off)

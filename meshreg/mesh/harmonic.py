@@ -215,6 +215,12 @@ def _assemble(start, bucket_col, bucket_val, n, ni):
 def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tuple[sp.csc_matrix, sp.csr_matrix]:
     """The rows of the mesh Laplacian L = diag(W 1) - W at the interior vertices, split into the interior block
     (i, i), CSC, and the coupling to the boundary loop (i, b), CSR, in the order of ``interior`` and of the loop."""
+    rows, coupling = _laplacian_rows(disk, interior, weights)
+    return rows.tocsc(), coupling
+
+
+def _laplacian_rows(disk: DiskMesh, interior: np.ndarray, weights: str) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """:func:`laplacian_blocks` with the interior block by rows, as assembled (each row's diagonal first)."""
     v, f, loop = disk.vertices, disk.faces, disk.boundary
     ni = len(interior)
     buckets = _row_buckets(
@@ -225,7 +231,7 @@ def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tupl
         weights == "cotangent",
     )
     bptr, bind, bval, cptr, cind, cval = _assemble(*buckets, len(v), ni)
-    block = sp.csr_matrix((bval, bind, bptr), shape=(ni, ni)).tocsc()
+    block = sp.csr_matrix((bval, bind, bptr), shape=(ni, ni))
     return block, sp.csr_matrix((cval, cind, cptr), shape=(ni, len(loop)))
 
 
@@ -353,14 +359,15 @@ class Factorization:
     The multifrontal LU (:class:`~meshreg.mesh.frontal.MultifrontalLU`: supernodes, dense fronts through BLAS,
     independent subtrees in two threads) keeps the diagonal as pivot. Where a pivot is zero or the factors are not
     finite, SuperLU factorizes in the same order and pivots within columns (``diag_pivot_thresh=0`` keeps the
-    diagonal wherever it is nonzero); an exactly singular matrix raises SuperLU's RuntimeError.
+    diagonal wherever it is nonzero); an exactly singular matrix raises SuperLU's RuntimeError. ``rows``, A by rows
+    when the caller has it, spares the LU a conversion.
     """
 
-    def __init__(self, a: sp.csc_matrix, analysis: Analysis | None = None):
+    def __init__(self, a: sp.csc_matrix, analysis: Analysis | None = None, rows: sp.csr_matrix | None = None):
         a = sp.csc_matrix(a)
         analysis = analyse(a) if analysis is None else analysis
         try:
-            self._lu = MultifrontalLU(a, analysis)
+            self._lu = MultifrontalLU(a, analysis, rows)
         except ZeroDivisionError:
             self._lu = _SuperLU(a, analysis.order)
 
@@ -436,8 +443,9 @@ class HarmonicMap:
         """The Laplacian's interior block (i, i), CSC, and its coupling to the boundary loop (i, b), CSR
         (:func:`laplacian_blocks`), assembled at the first call and kept."""
         if self._blocks is None:
-            self._blocks = laplacian_blocks(self.disk, self.interior, self.weights)
-        return self._blocks
+            rows, coupling = _laplacian_rows(self.disk, self.interior, self.weights)
+            self._blocks = rows.tocsc(), coupling, rows
+        return self._blocks[:2]
 
     @cached_property
     def _system(self):
@@ -451,7 +459,7 @@ class HarmonicMap:
             block, coupling = self.assemble()
             pattern = analysis.result()
         try:
-            return coupling, Factorization(block, pattern)
+            return coupling, Factorization(block, pattern, rows=self._blocks[2])
         except RuntimeError as err:  # SuperLU: "Factor is exactly singular"
             other = "cotangent" if self.weights == "mean-value" else "mean-value"
             raise InputError(
