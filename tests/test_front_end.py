@@ -133,7 +133,7 @@ def test_minimum_degree_lists_in_32_and_64_bits_give_one_order():
     for kind in (np.int32, np.int64):
         iw = np.empty(cnz + cnz // 5 + 2 * n, kind)
         iw[:cnz] = rows[:cnz]
-        results.append(_amd(pe.astype(kind), iw, cnz))
+        results.append(_amd(pe.astype(kind), iw, cnz, np.zeros(1, np.bool_)))
     assert results[0][2] and results[1][2]
     assert np.array_equal(results[0][0], results[1][0]) and np.array_equal(results[0][1], results[1][1])
 
@@ -180,3 +180,56 @@ def test_node_range_is_a_binary_search():
         for high in (low, low + 0.07, np.nextafter(low, 2)):
             assert _node_range(nodes, low, high) == (np.searchsorted(nodes, low), np.searchsorted(nodes, high, "right"))
     assert _node_range(nodes, np.nan, 0.5)[1] <= _node_range(nodes, np.nan, 0.5)[0]  # NaN corners: no node
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_rim_vertices_are_the_vertices_of_edges_one_face_uses(seed):
+    from meshreg.mesh.early import _rim_vertices
+
+    faces = _soup(seed)
+    _, _, inverse, counts = edge_table(faces)
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    expected = np.zeros(40, bool)
+    expected[directed[counts[inverse] == 1].ravel()] = True
+    assert np.array_equal(_rim_vertices(faces.astype(np.int64), 40), expected)
+
+
+def _map_with(disk_args, early):
+    """uv of the mesh (vertices, faces) mapped with its own corners, cleaned with ``early`` (or without)."""
+    from meshreg.mesh.harmonic import choose_corners
+
+    disk = prepare_disk(*disk_args, checked=None if early is None else early.begin)
+    return HarmonicMap(disk, early=early)(choose_corners(disk))[0]
+
+
+def test_an_analysis_begun_before_the_cleanup_gives_the_same_map_or_is_abandoned():
+    """The LU's analysis begun on the mesh as given (meshreg.mesh.early) is kept when the cleanup left the mesh as it
+    was, and gives the very map; when the cleanup changed the faces (a degenerate triangle dropped, an ear removed)
+    it is abandoned, its thread stopped, and the map is the one without it."""
+    import threading
+
+    from meshreg.mesh.early import EarlyAnalysis
+
+    v, f, _ = random_disk_mesh(bump(), 3000, seed=1)
+    early = EarlyAnalysis(minimum=0)
+    assert np.array_equal(_map_with((v, f), early), _map_with((v, f), None))
+    assert early.used
+    dirty = np.vstack([f, [[f[0, 0], f[0, 1], f[0, 1]]]])  # a triangle of no area, which the cleanup drops
+    early = EarlyAnalysis(minimum=0)
+    assert np.array_equal(_map_with((v, dirty), early), _map_with((v, f), None))
+    assert not early.used
+    assert threading.active_count() == 1
+    small = EarlyAnalysis()  # under EARLY_MIN vertices: nothing begun
+    _map_with((v, f), small)
+    assert not small.used
+
+
+def test_a_stopped_analysis_raises_abandoned():
+    from meshreg.mesh.frontal import analyse
+    from meshreg.mesh.ordering import Abandoned
+
+    v, f, _ = random_disk_mesh(bump(), 500, seed=2)
+    disk = prepare_disk(v, f)
+    block, _ = laplacian_blocks(disk, HarmonicMap(disk).interior, "mean-value")
+    with pytest.raises(Abandoned):
+        analyse(block, stop=np.ones(1, np.bool_))

@@ -16,6 +16,7 @@ from ..errors import InputError
 from ..grid import GridSurface
 from ..options import Options
 from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES
+from .early import EarlyAnalysis
 from .harmonic import (
     HarmonicMap,
     arc_fraction,
@@ -270,8 +271,9 @@ def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options, arcs: 
     Returns the list of GridSurfaces and an info dict (cleanup report, corners, flipped and degenerate counts, and
     ``searched``: "round" for trial placements, "turned" for four clear corners, else None).
     """
-    disk = prepare_disk(vertices, faces, cleanup=options.cleanup)
-    hmap = HarmonicMap(disk, options.weights)
+    early = EarlyAnalysis()  # the LU's analysis begun while the mesh is cleaned
+    disk = prepare_disk(vertices, faces, cleanup=options.cleanup, checked=early.begin)
+    hmap = HarmonicMap(disk, options.weights, early=early)
     searched = None
     if options.corner_search > 0:
         searched = "turned" if has_sharp_corners(disk) else "round"

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
-from .ordering import _postorder, symmetric_minimum_degree, symmetric_pattern
+from .ordering import Abandoned, _postorder, symmetric_minimum_degree, symmetric_pattern
 
 PANEL = 32  # columns per panel of a large front's factorization (its trailing update is one matrix product)
 UPDATE_ROWS = 256  # rows of a large front's trailing update per matrix product (bounds the scratch memory)
@@ -511,22 +511,26 @@ class Analysis:
     schedule: tuple
 
 
-def analyse(pattern: sp.spmatrix, threads: int = THREADS) -> Analysis:
+def analyse(pattern: sp.spmatrix, threads: int = THREADS, stop: np.ndarray | None = None) -> Analysis:
     """The symbolic analysis of a multifrontal LU of any matrix whose entries lie within ``pattern`` (n, n) (the
     pattern of A + A^T is used): the order (:func:`~meshreg.mesh.ordering.minimum_degree`), the elimination tree,
     the supernodes and their fronts' rows, and the threads' subtrees (one thread under THREADS_MIN unknowns). It
-    needs no values, so it can run while the values are computed."""
+    needs no values, so it can run while the values are computed. ``stop`` (1,) of bool: another thread sets it to
+    abandon the analysis (:class:`~meshreg.mesh.ordering.Abandoned`, raised within a pivot of the ordering or at
+    the next stage)."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
     if pattern.shape != (n, n):
         raise ValueError("analyse needs a square pattern")
     ptr, rows = symmetric_pattern(pattern)
-    order = symmetric_minimum_degree(pattern, ptr, rows)
+    order = symmetric_minimum_degree(pattern, ptr, rows, stop)
     parent = _etree(ptr, rows, order, _inverse(order))
     post = _postorder(parent, np.ones(n, np.int64), n)
     order, parent = order[post], _relabel(parent, post)
     inv = _inverse(order)
     first = _supernodes(parent, _column_counts(ptr, rows, order, inv, parent))
+    if stop is not None and stop[0]:
+        raise Abandoned("analyse: abandoned by another thread")
     flat, off, sparent, head, following = _structure(ptr, rows, order, inv, first, parent)
     if threads > 1 and n >= max(THREADS_MIN, 1):
         schedule = _schedule(first, off, sparent, threads)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -21,6 +22,9 @@ from .graph import side_lengths, turn_counts
 from .locate import uv_triangle
 from .ordering import spatial_order
 from .topology import DiskMesh, loop_segments, triangle_areas
+
+if TYPE_CHECKING:
+    from .early import EarlyAnalysis
 
 # the fallback SuperLU's relaxed supernode size and panel width (its defaults: 5 and 10). In the minimum degree order
 # of a mesh Laplacian's interior block, every pair from (1, 4) to (8, 8) factorized a 100k- (1M-) triangle terrain
@@ -278,8 +282,13 @@ def _face_pattern(f, place, ni):
 def interior_pattern(disk: DiskMesh, interior: np.ndarray) -> sp.csr_matrix:
     """The pattern (ones, (ni, ni)) of the Laplacian's interior block off its diagonal from the faces alone: the
     edges between interior vertices, whichever the weights (both put a weight on every edge, both ways)."""
-    ni = len(interior)
-    ptr, cols = _face_pattern(np.ascontiguousarray(disk.faces, dtype=np.int64), _places(disk, interior), ni)
+    return face_pattern(disk.faces, _places(disk, interior), len(interior))
+
+
+def face_pattern(faces: np.ndarray, place: np.ndarray, ni: int) -> sp.csr_matrix:
+    """The pattern (ones, (ni, ni)) of the edges of ``faces`` (m, 3) between the vertices whose ``place`` (n,) is
+    below ``ni``, at those places: :func:`interior_pattern` with every place given."""
+    ptr, cols = _face_pattern(np.ascontiguousarray(faces, dtype=np.int64), place, ni)
     return sp.csr_matrix((np.ones(len(cols), dtype=np.int8), cols, ptr), shape=(ni, ni))
 
 
@@ -420,15 +429,22 @@ class HarmonicMap:
     weights : {"mean-value", "cotangent"}
         Mean-value (Floater) weights, positive, keep the map bijective onto the convex square;
         cotangent weights (libigl's harmonic map) can flip triangles on scans.
+    name : str
+        What an error calls the mesh.
+    early : EarlyAnalysis, optional
+        The LU's symbolic analysis begun before the disk's cleanup (:mod:`meshreg.mesh.early`).
     """
 
-    def __init__(self, disk: DiskMesh, weights: str = "mean-value", name: str = "the mesh"):
+    def __init__(
+        self, disk: DiskMesh, weights: str = "mean-value", name: str = "the mesh", early: EarlyAnalysis | None = None
+    ):
         if weights not in ("mean-value", "cotangent"):
             raise InputError("weights must be 'mean-value' or 'cotangent'")
         self.disk = disk
         self.weights = weights
         self.name = name  # what an error calls the mesh (its file, or "first mesh")
         self._blocks = None
+        self._early = early
 
     @cached_property
     def interior(self) -> np.ndarray:
@@ -451,15 +467,21 @@ class HarmonicMap:
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
         without interior vertices). The LU's ordering and symbolic analysis need only the faces: a second thread
-        computes them while this one computes the weights."""
+        computes them while this one computes the weights, unless an :class:`~meshreg.mesh.early.EarlyAnalysis`
+        began them before the cleanup (kept when the disk is the mesh it analysed)."""
+        claimed = self._early.claim(self.disk.faces) if self._early is not None else None
         if not len(self.interior):
             return self.assemble()[1], None
         with ThreadPoolExecutor(1) as pool:
-            analysis = pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
+            analysis = claimed or pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
             block, coupling = self.assemble()
-            pattern = analysis.result()
+            pattern = analysis.result() if claimed is None else self._early.kept(claimed, self.interior)
+        if pattern is None:  # the early analysis was of other interior vertices
+            pattern = analyse(interior_pattern(self.disk, self.interior))
         try:
-            return coupling, Factorization(block, pattern, rows=self._blocks[2])
+            lu = Factorization(block, pattern, rows=self._blocks[2])
+            self._blocks = self._blocks[:2]  # the rows served the LU only
+            return coupling, lu
         except RuntimeError as err:  # SuperLU: "Factor is exactly singular"
             other = "cotangent" if self.weights == "mean-value" else "mean-value"
             raise InputError(

@@ -327,10 +327,11 @@ def _finalize(k, pk1, pk2, dk, nvk, left, mindeg, graph, iw, lists):
 
 
 @numba.njit(cache=True, nogil=True)
-def _amd(ptr, iw, cnz):
+def _amd(ptr, iw, cnz, stop):
     """Approximate minimum degree on the quotient graph whose adjacency lists are iw[ptr[i]: ptr[i + 1]] (no
     diagonal); returns the parent of every node in the assembly tree (-1 at roots), nv (> 0 for the elements, the
-    pivots) and True; or False when ``iw`` has too little room after the lists. Names follow the published
+    pivots) and True; or False when ``iw`` has too little room after the lists or another thread set ``stop[0]``
+    (checked at every pivot). Names follow the published
     algorithm: elen (elements in a list), nv (supervariable size, negated while in the new element Lk), w
     (set-difference counters against ``mark``, 64-bit: the marks grow past 32 bits on large graphs). The lists are of
     ``iw``'s integer type (32-bit halves the memory traffic)."""
@@ -351,6 +352,8 @@ def _amd(ptr, iw, cnz):
                 last[head[d]] = i
             nxt[i], head[d] = head[d], i
     while nel < n:
+        if stop[0]:
+            return np.full(n, -1, np.int64), nv, False
         while head[mindeg] == -1:
             mindeg += 1
         k = head[mindeg]
@@ -374,6 +377,11 @@ def _amd(ptr, iw, cnz):
     for i in range(n):
         parent[i] = -1 if pe[i] == -1 else _flip(pe[i])
     return parent, nv, True
+
+
+class Abandoned(Exception):
+    """An ordering or analysis stopped because another thread set its ``stop`` flag (the work was no longer
+    wanted: see :class:`meshreg.mesh.early.EarlyAnalysis`)."""
 
 
 def minimum_degree(a: sp.spmatrix) -> np.ndarray:
@@ -410,7 +418,9 @@ def symmetric_pattern(a: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
     return _symmetric_pattern(a.indptr.astype(np.int64), a.indices.astype(np.int64), a.shape[0])
 
 
-def symmetric_minimum_degree(a: sp.csc_matrix, pe: np.ndarray, rows: np.ndarray) -> np.ndarray:
+def symmetric_minimum_degree(
+    a: sp.csc_matrix, pe: np.ndarray, rows: np.ndarray, stop: np.ndarray | None = None
+) -> np.ndarray:
     """:func:`minimum_degree` of a matrix whose :func:`symmetric_pattern` is computed already (a symbolic analysis
     needs it too).
 
@@ -420,6 +430,8 @@ def symmetric_minimum_degree(a: sp.csc_matrix, pe: np.ndarray, rows: np.ndarray)
         The matrix (its submatrices are ordered again when it has hubs).
     pe, rows : ndarray (n + 1,), ndarray
         Its :func:`symmetric_pattern`.
+    stop : ndarray (1,) of bool, optional
+        Set by another thread to abandon the ordering (:class:`Abandoned` is raised at the next pivot).
 
     Returns
     -------
@@ -442,7 +454,10 @@ def symmetric_minimum_degree(a: sp.csc_matrix, pe: np.ndarray, rows: np.ndarray)
     kind = np.int32 if room < np.iinfo(np.int32).max else np.int64  # the same order, less memory traffic
     iw = np.empty(room, kind)
     iw[:cnz] = rows[:cnz]
-    parent, nv, done = _amd(pe.astype(kind), iw, cnz)
+    stop = np.zeros(1, np.bool_) if stop is None else stop
+    parent, nv, done = _amd(pe.astype(kind), iw, cnz, stop)
+    if stop[0]:
+        raise Abandoned("minimum_degree: abandoned by another thread")
     if not done:
         raise AssertionError("minimum_degree: the quotient graph outgrew its workspace")
     order = _postorder(parent, nv, n)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -220,7 +221,12 @@ def _edges(faces):
 
 
 def prepare_disk(
-    vertices: np.ndarray, faces: np.ndarray, *, cleanup: bool = True, fill_holes: bool | None = None
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    cleanup: bool = True,
+    fill_holes: bool | None = None,
+    checked: Callable[[np.ndarray, np.ndarray], None] | None = None,
 ) -> DiskMesh:
     """Check (and with ``cleanup``, repair what is safe) that a mesh is a topological disk.
 
@@ -239,6 +245,10 @@ def prepare_disk(
     fill_holes : bool, optional
         Close every boundary loop but the longest (the outer boundary) with a fan around a new vertex
         at the hole's centroid. Defaults to ``cleanup``.
+    checked : callable, optional
+        Called with the vertices (n, 3) and faces (m, 3) once they are checked and (SPACE_ORDER_MIN vertices or
+        more) renumbered, before the cleanup: work that needs the mesh as the disk will most often have it can begin
+        there (:meth:`meshreg.mesh.early.EarlyAnalysis.begin`).
 
     Raises
     ------
@@ -258,6 +268,8 @@ def prepare_disk(
     """
     fill_holes = cleanup if fill_holes is None else fill_holes
     v, f, order = _space_ordered(*_checked_arrays(vertices, faces))
+    if checked is not None:
+        checked(v, f)
     given, report = f, []
     f = _drop_degenerate(v, f, cleanup, report)
     edges = _edges(f)  # recomputed only when a step changes the faces
