@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 
 import numba
 import numpy as np
@@ -362,26 +362,57 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
     return True
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _solve(first, flat, off, factors, offsets, b):
-    """Solves L U x = b in place (b (n, k) in the factor's order): forward through the supernodes, then back."""
-    diag, lower, upper = factors
-    nsup, k = len(first) - 1, b.shape[1]
-    for s in range(nsup):
-        f, ns, nu = first[s], first[s + 1] - first[s], off[s + 1] - off[s]
-        d, lu = offsets[0][s], offsets[1][s]
-        for a in range(ns):
-            for q in range(a):
-                w = diag[d + a * ns + q]
-                for r in range(k):
-                    b[f + a, r] -= w * b[f + q, r]
-        for a in range(nu):
-            i = flat[off[s] + a]
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _pivot_rows(s, first, factors, offsets, b):
+    """Supernode s's part of the forward solve within its own rows (its unit lower diagonal block)."""
+    f, ns, d = first[s], first[s + 1] - first[s], offsets[0][s]
+    for a in range(ns):
+        for q in range(a):
+            w = factors[0][d + a * ns + q]
+            for r in range(b.shape[1]):
+                b[f + a, r] -= w * b[f + q, r]
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _update_rows(s, first, flat, off, factors, offsets, b, held, want):
+    """Supernode s's part of the forward solve on its update rows i whose ``held[i]`` is ``want``."""
+    f, ns, lu = first[s], first[s + 1] - first[s], offsets[1][s]
+    for a in range(off[s + 1] - off[s]):
+        i = flat[off[s] + a]
+        if held[i] == want:
             for q in range(ns):
-                w = lower[lu + a * ns + q]
-                for r in range(k):
+                w = factors[1][lu + a * ns + q]
+                for r in range(b.shape[1]):
                     b[i, r] -= w * b[f + q, r]
-    for s in range(nsup - 1, -1, -1):
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _forward(seq, first, flat, off, factors, offsets, b, held):
+    """Solves L y = b in place (b (n, k) in the factor's order) over the supernodes ``seq``, in their order, except
+    on the rows i where ``held[i]`` (left for :func:`_forward_held`)."""
+    for s in seq:
+        _pivot_rows(s, first, factors, offsets, b)
+        _update_rows(s, first, flat, off, factors, offsets, b, held, False)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _forward_held(top, first, flat, off, factors, offsets, b, held):
+    """After :func:`_forward` of the threads' subtrees: the forward solve on the ``held`` rows (the top's), every
+    supernode in order, the ``top`` ones (a mask over the supernodes) whole. Each row gets the operations of the
+    serial solve in the serial order, so the bits are the same."""
+    for s in range(len(first) - 1):
+        if top[s]:
+            _pivot_rows(s, first, factors, offsets, b)
+        _update_rows(s, first, flat, off, factors, offsets, b, held, True)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _backward(seq, first, flat, off, factors, offsets, b):
+    """Solves U x = y in place over the supernodes ``seq``, last to first (each after its ancestors)."""
+    diag, upper = factors[0], factors[2]
+    k = b.shape[1]
+    for t in range(len(seq) - 1, -1, -1):
+        s = seq[t]
         f, ns, nu = first[s], first[s + 1] - first[s], off[s + 1] - off[s]
         d, lu = offsets[0][s], offsets[1][s]
         for a in range(ns - 1, -1, -1):
@@ -619,7 +650,41 @@ class MultifrontalLU:
         b = np.asarray(b, dtype=float)
         an = self.analysis
         work = np.ascontiguousarray((b[:, None] if b.ndim == 1 else b)[an.order])
-        _solve(an.first, an.flat, an.off, self.factors, self.offsets, work)
+        tree = (an.first, an.flat, an.off, self.factors, self.offsets)
+        bins = an.schedule[0]
+        if bins:
+            self._threaded_solve(bins, tree, work)
+        else:
+            every = np.arange(len(an.first) - 1)
+            _forward(every, *tree, work, np.zeros(len(work), np.bool_))
+            _backward(every, *tree, work)
         x = np.empty_like(work)
         x[an.order] = work
         return x.reshape(b.shape)
+
+    @cached_property
+    def _held(self) -> tuple[np.ndarray, np.ndarray]:
+        """Masks of the top of the tree (:attr:`Analysis.schedule`): over the supernodes (nsup,) and over the rows
+        in the factor's order (n,)."""
+        an = self.analysis
+        top = np.zeros(len(an.first) - 1, np.bool_)
+        top[an.schedule[1]] = True
+        return top, np.repeat(top, np.diff(an.first))
+
+    def _threaded_solve(self, bins: list, tree: tuple, work: np.ndarray) -> None:
+        """L U x = b in place (``work`` (n, k), the factor's order) with the threads' subtrees side by side, to the
+        same bits as one thread: forward, each subtree on its own rows (the rows of the top, which two subtrees may
+        share, held back), then every supernode's part on the top's rows in order; back, the top, then each subtree
+        (which reads the rows above it and writes its own)."""
+        top, held = self._held
+        with ThreadPoolExecutor(max(len(bins) - 1, 1)) as pool:
+            pending = [pool.submit(_forward, seq, *tree, work, held) for seq in bins[1:]]
+            _forward(bins[0], *tree, work, held)
+            for job in pending:
+                job.result()
+            _forward_held(top, *tree, work, held)
+            _backward(self.analysis.schedule[1], *tree, work)
+            pending = [pool.submit(_backward, seq, *tree, work) for seq in bins[1:]]
+            _backward(bins[0], *tree, work)
+            for job in pending:
+                job.result()
