@@ -102,7 +102,7 @@ class EarlyAnalysis:
         if len(vertices) < self.minimum or self._future is not None:
             return
         self._faces = np.ascontiguousarray(faces, dtype=np.int64)
-        pool = ThreadPoolExecutor(1)
+        pool = ThreadPoolExecutor(1, thread_name_prefix="meshreg-early")
         self._future = pool.submit(_interior_analysis, vertices, self._faces, self._stop)
         pool.shutdown(wait=False)
 
