@@ -15,7 +15,7 @@ import numpy as np
 from .locate import uv_triangle
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _edge_table(faces: np.ndarray, n: int):
     """Directed edges (3m, 2), the undirected edge id of each (bucketed by its lower vertex: O(n + m)), the first
     directed edge of each undirected edge, and how many directed edges use each."""
@@ -85,7 +85,7 @@ def _root(parent: np.ndarray, a: int) -> int:
     return a
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _components(faces: np.ndarray, n: int):
     parent = np.arange(n)
     for f in range(faces.shape[0]):
@@ -119,7 +119,7 @@ def _cross(v: np.ndarray, a: int, b: int, c: int) -> tuple[float, float, float]:
     return y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     out = np.empty(f.shape[0])
     for t in range(f.shape[0]):
@@ -128,7 +128,7 @@ def _areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     out = np.empty((f.shape[0], 3))
     for t in range(f.shape[0]):
@@ -142,7 +142,7 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return _normals(np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _side_lengths(points: np.ndarray, faces: np.ndarray, sides: int) -> np.ndarray:
     out = np.empty(sides * faces.shape[0])
     for t in range(faces.shape[0]):
@@ -161,7 +161,7 @@ def side_lengths(points: np.ndarray, faces: np.ndarray, sides: int = 3) -> np.nd
     return _side_lengths(np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(faces, dtype=np.int64), sides)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _turn_counts(uv: np.ndarray, f: np.ndarray, tiny: float) -> tuple[int, int, int]:
     positive = negative = degenerate = 0
     for t in range(f.shape[0]):
@@ -183,7 +183,7 @@ def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return _areas(np.ascontiguousarray(vertices, dtype=float), np.ascontiguousarray(faces, dtype=np.int64))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _neighbourhood_sums(faces: np.ndarray, values: np.ndarray, incident: np.ndarray) -> np.ndarray:
     """Per face, the sum of ``values`` (m, d) over the faces that share a corner with it (itself included), each
     once, the faces around each vertex read from ``incident``. Summed in the order of scipy's ``(I @ I.T) @ values``

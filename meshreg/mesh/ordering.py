@@ -23,7 +23,7 @@ DENSE_FACTOR = 10.0
 MORTON_BITS = 21  # bits per axis of the Morton (Z-order) code: 3 x 21 fill a 64-bit key
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _morton_keys(points, low, scale):
     """Morton keys (n,) of points (n, 3): each coordinate quantized to MORTON_BITS bits, their bits interleaved."""
     top = float(2**MORTON_BITS - 1)

@@ -302,7 +302,7 @@ def _space_ordered(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return v[order], _relabelled(f, order), order
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _relabelled(faces: np.ndarray, order: np.ndarray) -> np.ndarray:
     """The faces (m, 3) with vertex ``order[k]`` renamed k, corners in their order, the faces sorted by their lowest
     new vertex (a counting sort, stable): neighbouring faces get nearby places too."""
