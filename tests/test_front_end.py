@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import trimesh
 from scipy.sparse.csgraph import connected_components
 
+from meshreg.errors import InputError
 from meshreg.mesh.graph import edge_table, face_components, neighbourhood_sums, triangle_areas, turn_counts
 from meshreg.mesh.harmonic import HarmonicMap, factorize, laplacian_blocks
 from meshreg.mesh.ordering import minimum_degree, spatial_order
@@ -202,12 +204,19 @@ def _map_with(disk_args, early):
     return HarmonicMap(disk, early=early)(choose_corners(disk))[0]
 
 
-def test_an_analysis_begun_before_the_cleanup_gives_the_same_map_or_is_abandoned():
-    """The LU's analysis begun on the mesh as given (meshreg.mesh.early) is kept when the cleanup left the mesh as it
-    was, and gives the very map; when the cleanup changed the faces (a degenerate triangle dropped, an ear removed)
-    it is abandoned, its thread stopped, and the map is the one without it."""
+def _no_early_thread_left():
     import threading
 
+    for thread in threading.enumerate():  # an abandoned analysis's thread ends (its pool shuts down)
+        if thread.name.startswith("meshreg-early"):
+            thread.join(timeout=10)
+            assert not thread.is_alive()
+
+
+def test_an_analysis_begun_before_the_cleanup_gives_the_same_map_or_is_abandoned():
+    """The LU's analysis begun on the mesh as given (meshreg.mesh.early) is kept when the cleanup left the mesh as it
+    was, and gives the very map; when the cleanup changed the faces (a degenerate triangle dropped) or failed, it is
+    abandoned and its thread stopped, and the map is the one without it."""
     from meshreg.mesh.early import EarlyAnalysis
 
     v, f, _ = random_disk_mesh(bump(), 3000, seed=1)
@@ -218,10 +227,11 @@ def test_an_analysis_begun_before_the_cleanup_gives_the_same_map_or_is_abandoned
     early = EarlyAnalysis(minimum=0)
     assert np.array_equal(_map_with((v, dirty), early), _map_with((v, f), None))
     assert not early.used
-    for thread in threading.enumerate():  # the abandoned analysis's thread has ended (its pool shuts down)
-        if thread.name.startswith("meshreg-early"):
-            thread.join(timeout=10)
-            assert not thread.is_alive()
+    _no_early_thread_left()
+    closed = trimesh.creation.icosphere(3)
+    with pytest.raises(InputError, match="closed"), EarlyAnalysis(minimum=0) as early:
+        prepare_disk(closed.vertices, closed.faces, checked=early.begin)
+    _no_early_thread_left()
     small = EarlyAnalysis()  # under EARLY_MIN vertices: nothing begun
     _map_with((v, f), small)
     assert not small.used

@@ -271,16 +271,16 @@ def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options, arcs: 
     Returns the list of GridSurfaces and an info dict (cleanup report, corners, flipped and degenerate counts, and
     ``searched``: "round" for trial placements, "turned" for four clear corners, else None).
     """
-    early = EarlyAnalysis()  # the LU's analysis begun while the mesh is cleaned
-    disk = prepare_disk(vertices, faces, cleanup=options.cleanup, checked=early.begin)
-    hmap = HarmonicMap(disk, options.weights, early=early)
-    searched = None
-    if options.corner_search > 0:
-        searched = "turned" if has_sharp_corners(disk) else "round"
-    placements = [choose_corners(disk)] if searched != "round" else []
-    if searched == "round" or (searched == "turned" and arcs):
-        placements += placement_corners(hmap, options.corner_search)
-    maps = [hmap(corners) for corners in placements]
+    with EarlyAnalysis() as early:  # the LU's analysis begun while the mesh is cleaned
+        disk = prepare_disk(vertices, faces, cleanup=options.cleanup, checked=early.begin)
+        hmap = HarmonicMap(disk, options.weights, early=early)
+        searched = None
+        if options.corner_search > 0:
+            searched = "turned" if has_sharp_corners(disk) else "round"
+        placements = [choose_corners(disk)] if searched != "round" else []
+        if searched == "round" or (searched == "turned" and arcs):
+            placements += placement_corners(hmap, options.corner_search)
+        maps = [hmap(corners) for corners in placements]
     n = options.resolution
     grids = [resample_grid(disk.vertices, disk.faces, uv, n, n, options.antialias) for uv, _ in maps]
     return grids, {**maps[0][1], "cleanup": disk.report, "searched": searched}

@@ -547,8 +547,8 @@ def analyse(pattern: sp.spmatrix, threads: int = THREADS, stop: np.ndarray | Non
     pattern of A + A^T is used): the order (:func:`~meshreg.mesh.ordering.minimum_degree`), the elimination tree,
     the supernodes and their fronts' rows, and the threads' subtrees (one thread under THREADS_MIN unknowns). It
     needs no values, so it can run while the values are computed. ``stop`` (1,) of bool: another thread sets it to
-    abandon the analysis (:class:`~meshreg.mesh.ordering.Abandoned`, raised within a pivot of the ordering or at
-    the next stage)."""
+    abandon the analysis (:class:`~meshreg.mesh.ordering.Abandoned`, raised at the ordering's next pivot or after
+    the ordering)."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
     if pattern.shape != (n, n):
@@ -616,6 +616,8 @@ class MultifrontalLU:
             raise ValueError(f"a matrix of shape {a.shape} for an analysis of {analysis.n} unknowns")
         csc = (a.indptr, a.indices, a.data)
         rows_major = a.tocsr() if rows is None else sp.csr_matrix(rows, dtype=float)
+        if rows_major.shape != a.shape or rows_major.nnz != a.nnz:
+            raise ValueError(f"rows {rows_major.shape}, {rows_major.nnz} entries, are not A {a.shape}, {a.nnz}")
         csr = (rows_major.indptr, rows_major.indices, rows_major.data)
         first, off = analysis.first, analysis.off
         ns, nu = np.diff(first), np.diff(off)

@@ -469,15 +469,18 @@ class HarmonicMap:
         without interior vertices). The LU's ordering and symbolic analysis need only the faces: a second thread
         computes them while this one computes the weights, unless an :class:`~meshreg.mesh.early.EarlyAnalysis`
         began them before the cleanup (kept when the disk is the mesh it analysed)."""
-        claimed = self._early.claim(self.disk.faces) if self._early is not None else None
-        if not len(self.interior):
-            return self.assemble()[1], None
-        with ThreadPoolExecutor(1) as pool:
-            analysis = claimed or pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
-            block, coupling = self.assemble()
-            pattern = analysis.result() if claimed is None else self._early.kept(claimed, self.interior)
-        if pattern is None:  # the early analysis was of other interior vertices
-            pattern = analyse(interior_pattern(self.disk, self.interior))
+        early = self._early
+        try:
+            if not len(self.interior):
+                return self.assemble()[1], None
+            claimed = early is not None and early.claim(self.disk.faces, self.interior)
+            with ThreadPoolExecutor(1) as pool:
+                analysis = None if claimed else pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
+                block, coupling = self.assemble()
+                pattern = early.analysis() if claimed else analysis.result()
+        finally:
+            if early is not None:
+                early.abandon()  # whatever no map took (nothing, when the analysis was claimed)
         try:
             lu = Factorization(block, pattern, rows=self._blocks[2])
             self._blocks = self._blocks[:2]  # the rows served the LU only

@@ -431,7 +431,8 @@ def symmetric_minimum_degree(
     pe, rows : ndarray (n + 1,), ndarray
         Its :func:`symmetric_pattern`.
     stop : ndarray (1,) of bool, optional
-        Set by another thread to abandon the ordering (:class:`Abandoned` is raised at the next pivot).
+        Set by another thread to abandon the ordering (:class:`Abandoned` is raised when the minimum degree
+        reaches its next pivot, or after it).
 
     Returns
     -------
@@ -446,7 +447,9 @@ def symmetric_minimum_degree(
     if dense.any():
         kept = np.flatnonzero(~dense)
         hubs = np.flatnonzero(dense)
-        return np.concatenate([kept[minimum_degree(a[kept][:, kept])], hubs[np.argsort(degree[hubs], kind="stable")]])
+        sub = sp.csc_matrix(a[kept][:, kept])
+        order = symmetric_minimum_degree(sub, *symmetric_pattern(sub), stop)
+        return np.concatenate([kept[order], hubs[np.argsort(degree[hubs], kind="stable")]])
     cnz = int(pe[n])
     # room after the pattern: the quotient graph never needs more than the pattern and n more entries (each new
     # element's list is at most as long as the lists it absorbs, plus garbage collection); cs_amd's 1.2 cnz + 2n
