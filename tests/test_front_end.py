@@ -246,3 +246,17 @@ def test_a_stopped_analysis_raises_abandoned():
     block, _ = laplacian_blocks(disk, HarmonicMap(disk).interior, "mean-value")
     with pytest.raises(Abandoned):
         analyse(block, stop=np.ones(1, np.bool_))
+
+
+def test_a_mesh_edge_pattern_analysed_as_symmetric_gives_the_same_analysis():
+    """analyse(symmetric=True) takes a mesh's edge pattern as the pattern of A + A^T: the same order, supernodes and
+    fronts as building A + A^T from it."""
+    from meshreg.mesh.frontal import analyse
+    from meshreg.mesh.harmonic import interior_pattern
+
+    v, f, _ = random_disk_mesh(bump(), 4000, seed=5)
+    disk = prepare_disk(v, f)
+    pattern = interior_pattern(disk, HarmonicMap(disk).interior)
+    general, shortcut = analyse(pattern), analyse(pattern, symmetric=True)
+    for name in ("order", "first", "flat", "off", "head", "following"):
+        assert np.array_equal(getattr(general, name), getattr(shortcut, name)), name

@@ -70,7 +70,7 @@ def _interior_analysis(faces: np.ndarray, interior: np.ndarray, n: int, stop: np
     ni = len(interior)
     place = np.full(n, ni, np.int64)  # every vertex of the boundary after the interior, as in the map
     place[interior] = np.arange(ni)
-    return analyse(face_pattern(faces, place, ni), stop=stop)
+    return analyse(face_pattern(faces, place, ni), stop=stop, symmetric=True)
 
 
 class EarlyAnalysis:

@@ -542,18 +542,26 @@ class Analysis:
     schedule: tuple
 
 
-def analyse(pattern: sp.spmatrix, threads: int = THREADS, stop: np.ndarray | None = None) -> Analysis:
+def analyse(
+    pattern: sp.spmatrix, threads: int = THREADS, stop: np.ndarray | None = None, symmetric: bool = False
+) -> Analysis:
     """The symbolic analysis of a multifrontal LU of any matrix whose entries lie within ``pattern`` (n, n) (the
     pattern of A + A^T is used): the order (:func:`~meshreg.mesh.ordering.minimum_degree`), the elimination tree,
     the supernodes and their fronts' rows, and the threads' subtrees (one thread under THREADS_MIN unknowns). It
     needs no values, so it can run while the values are computed. ``stop`` (1,) of bool: another thread sets it to
     abandon the analysis (:class:`~meshreg.mesh.ordering.Abandoned`, raised at the ordering's next pivot or after
-    the ordering)."""
+    the ordering). ``symmetric``: the pattern is symmetric, without diagonal or repeated entries (the edges of a
+    mesh, :func:`~meshreg.mesh.harmonic.face_pattern`); its sorted CSC is then the pattern of A + A^T that
+    :func:`~meshreg.mesh.ordering.symmetric_pattern` would build, entry for entry (0.1-0.16 s at 1M triangles)."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
     if pattern.shape != (n, n):
         raise ValueError("analyse needs a square pattern")
-    ptr, rows = symmetric_pattern(pattern)
+    if symmetric:
+        pattern.sort_indices()
+        ptr, rows = pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64)
+    else:
+        ptr, rows = symmetric_pattern(pattern)
     order = symmetric_minimum_degree(pattern, ptr, rows, stop)
     parent = _etree(ptr, rows, order, _inverse(order))
     post = _postorder(parent, np.ones(n, np.int64), n)

@@ -463,6 +463,10 @@ class HarmonicMap:
             self._blocks = rows.tocsc(), coupling, rows
         return self._blocks[:2]
 
+    def _pattern(self) -> sp.csr_matrix:
+        """The interior block's pattern (:func:`interior_pattern`)."""
+        return interior_pattern(self.disk, self.interior)
+
     @cached_property
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
@@ -475,9 +479,9 @@ class HarmonicMap:
                 return self.assemble()[1], None
             claimed = early is not None and early.claim(self.disk.faces, self.interior)
             with ThreadPoolExecutor(1) as pool:
-                analysis = None if claimed else pool.submit(lambda: analyse(interior_pattern(self.disk, self.interior)))
+                job = None if claimed else pool.submit(lambda: analyse(self._pattern(), symmetric=True))
                 block, coupling = self.assemble()
-                pattern = early.analysis() if claimed else analysis.result()
+                pattern = early.analysis() if claimed else job.result()
         finally:
             if early is not None:
                 early.abandon()  # whatever no map took (nothing, when the analysis was claimed)
