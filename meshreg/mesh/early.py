@@ -18,8 +18,7 @@ import numba
 import numpy as np
 
 from .frontal import Analysis, analyse
-from .harmonic import face_pattern
-from .ordering import spatial_order
+from .harmonic import face_pattern, interior_in_space_order
 
 # vertices from which the analysis begins before the cleanup: on the 100k-triangle benchmark mesh (50k vertices)
 # the front end took the same time either way; at 500k vertices (1M triangles) it saved 0.3-0.5 s of 3
@@ -59,9 +58,7 @@ def _rim_vertices(faces: np.ndarray, n: int) -> np.ndarray:
 def _interior(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """The interior vertices (ni,) in space order, as :attr:`~meshreg.mesh.harmonic.HarmonicMap.interior` finds them
     for a disk with these vertices and faces (whose boundary is the vertices on edges that one face alone uses)."""
-    inside = ~_rim_vertices(faces, len(vertices))
-    order = spatial_order(vertices)
-    return order[inside[order]]
+    return interior_in_space_order(vertices, _rim_vertices(faces, len(vertices)))
 
 
 def _interior_analysis(faces: np.ndarray, interior: np.ndarray, n: int, stop: np.ndarray) -> Analysis:

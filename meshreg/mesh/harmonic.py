@@ -292,6 +292,13 @@ def face_pattern(faces: np.ndarray, place: np.ndarray, ni: int) -> sp.csr_matrix
     return sp.csr_matrix((np.ones(len(cols), dtype=np.int8), cols, ptr), shape=(ni, ni))
 
 
+def interior_in_space_order(vertices: np.ndarray, on_boundary: np.ndarray) -> np.ndarray:
+    """The vertices (n, 3) not ``on_boundary`` (bool, (n,)), as indices in space order (:func:`spatial_order`): the
+    unknowns of the map, numbered so that the assembly and the ordering stay in cache."""
+    order = spatial_order(vertices)
+    return order[~on_boundary[order]]
+
+
 def quarter_corners(disk: DiskMesh, start: float) -> np.ndarray:
     """Loop positions (increasing) of the corners at quarter arc lengths from the point at arc-length
     fraction ``start`` in [0, 1) of the boundary loop (measured from its first vertex)."""
@@ -450,10 +457,9 @@ class HarmonicMap:
     def interior(self) -> np.ndarray:
         """The interior vertices (the unknowns, (ni,)) in space order (:func:`spatial_order`): the assembly and
         the ordering then stay in cache. Found at the first use, like the LU."""
-        inside = np.ones(len(self.disk.vertices), dtype=bool)
-        inside[self.disk.boundary] = False
-        order = spatial_order(self.disk.vertices)
-        return order[inside[order]]
+        on_boundary = np.zeros(len(self.disk.vertices), dtype=bool)
+        on_boundary[self.disk.boundary] = True
+        return interior_in_space_order(self.disk.vertices, on_boundary)
 
     def assemble(self) -> tuple[sp.csc_matrix, sp.csr_matrix]:
         """The Laplacian's interior block (i, i), CSC, and its coupling to the boundary loop (i, b), CSR
