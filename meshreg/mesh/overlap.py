@@ -178,6 +178,10 @@ class Overlap:
         """The pair's edge length: the coarser mesh's median edge (first's units)."""
         return max(self.edges)
 
+    def posed_source(self) -> Surface:
+        """The second mesh (``source``) moved by the alignment's pose into the first's frame."""
+        return self.source.moved(self.alignment.matrix)
+
     def summary(self) -> dict:
         """The overlap as plain values (for ``result.info``)."""
         return {
@@ -547,7 +551,7 @@ def rigid_match(first: DiskMesh, second: DiskMesh, found: Overlap) -> Overlap | 
     edge = found.edge
     if not (found.regime == "full" and found.rms["pose"] <= TIGHT * edge and found.slide <= PINNED):
         return None
-    posed = found.source.moved(found.alignment.matrix)
+    posed = found.posed_source()
     one, two, rms, coincide = _sides(first, second, found.target, posed, edge)
     probe = _probe(found.target, one.signed >= 0, posed, edge)
     if not probe > TIGHT * edge:
@@ -634,7 +638,7 @@ def warped_overlap(first: DiskMesh, second: DiskMesh, posed: Overlap, matches: n
         regime, reason = _verdict("rigid", one, two, coincide, posed.alignment.scale, posed.slide, posed.edges)
         rms = found.rms
         if regime == "rigid":  # a noisy pose: pinned when moving it raises its RMS well above the noise's
-            moved = posed.source.moved(posed.alignment.matrix)
+            moved = posed.posed_source()
             rms = {**rms, "probe": _probe(posed.target, posed.first.signed >= 0, moved, posed.edge)}
             regime, reason = ("whole", UNPINNED) if rms["probe"] <= PROBE_RISE * rms["pose"] else (regime, reason)
         found = replace(posed, regime=regime, reason=reason, rms=rms)
