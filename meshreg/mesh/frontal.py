@@ -205,10 +205,37 @@ def _entrywise_lu(front, m, ns):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _subtract_product(front, inner, rows, columns, work):
+    """front[rows, columns] -= front[rows, inner] @ front[inner, columns] (front (m, m); ``inner``, ``rows``,
+    ``columns`` as (start, stop)) by matrix products of at most UPDATE_ROWS rows, the right factor copied once
+    (``work``: scratch of at least (inner + 2 UPDATE_ROWS) * columns + UPDATE_ROWS * inner entries)."""
+    c0, c1 = inner
+    r0, r1 = rows
+    j0, j1 = columns
+    width, span = c1 - c0, j1 - j0
+    if width == 0 or span == 0 or r1 <= r0:
+        return
+    right = work[: width * span].reshape((width, span))
+    right[:] = front[c0:c1, j0:j1]
+    used = width * span
+    for a0 in range(r0, r1, UPDATE_ROWS):
+        a1 = min(a0 + UPDATE_ROWS, r1)
+        left = work[used : used + (a1 - a0) * width].reshape((a1 - a0, width))
+        product = work[used + (a1 - a0) * width : used + (a1 - a0) * (width + span)].reshape((a1 - a0, span))
+        left[:] = front[a0:a1, c0:c1]
+        np.dot(left, right, product)
+        for i in range(a1 - a0):
+            for j in range(span):
+                front[a0 + i, j0 + j] -= product[i, j]
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _panel_lu(front, m, ns, work):
     """Partial LU in place of the first ns pivots of a front (m, m): column panels of PANEL pivots, each factorized
-    entry-wise, its rows of U by forward substitution, and the rest of the front updated by one matrix product
-    in blocks of UPDATE_ROWS rows (``work``: scratch of at least (2 PANEL + UPDATE_ROWS) m entries)."""
+    entry-wise, its rows of U by forward substitution, and the pivot rows and columns after it updated by matrix
+    products; the update block (rows and columns from ns on, most of the work) then by one product of inner size
+    ns, L21 U12, which BLAS runs at several times the speed of ns / PANEL thin ones (``work``: scratch of
+    :func:`_subtract_product`)."""
     for k0 in range(0, ns, PANEL):
         k1 = min(k0 + PANEL, ns)
         for k in range(k0, k1):
@@ -227,18 +254,9 @@ def _panel_lu(front, m, ns, work):
                 if factor != 0.0:
                     for j in range(k1, m):
                         front[i, j] -= factor * front[k, j]
-        rest, width = m - k1, k1 - k0
-        right = work[: width * rest].reshape((width, rest))
-        right[:] = front[k0:k1, k1:]
-        for r0 in range(k1, m, UPDATE_ROWS):
-            r1 = min(r0 + UPDATE_ROWS, m)
-            left = work[width * rest : width * rest + (r1 - r0) * width].reshape((r1 - r0, width))
-            product = work[width * (rest + r1 - r0) : width * (rest + r1 - r0) + (r1 - r0) * rest]
-            left[:] = front[r0:r1, k0:k1]
-            np.dot(left, right, product.reshape((r1 - r0, rest)))
-            for i in range(r1 - r0):
-                for j in range(rest):
-                    front[r0 + i, k1 + j] -= product[i * rest + j]
+        _subtract_product(front, (k0, k1), (k1, m), (k1, ns), work)  # the pivot columns left, on every row
+        _subtract_product(front, (k0, k1), (k1, ns), (ns, m), work)  # the pivot rows left, on the update columns
+    _subtract_product(front, (0, ns), (ns, m), (ns, m), work)
 
 
 @numba.njit(cache=True)
@@ -309,7 +327,7 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
     n = len(order)
     mmax = max([first[s + 1] - first[s] + off[s + 1] - off[s] for s in seq]) if len(seq) else 0
     buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.full(n, -1, np.int64)
-    work = np.empty((2 * PANEL + UPDATE_ROWS) * mmax)
+    work = np.empty(mmax * mmax // 4 + 3 * UPDATE_ROWS * mmax)  # _subtract_product's scratch
     stack, tops, depth = np.empty(1 << 16), np.zeros(len(seq) + 1, np.int64), 0
     for s in seq:
         f, last = first[s], first[s + 1]
