@@ -1,5 +1,7 @@
 """The mesh front end's linear-time kernels against their plain numpy/scipy definitions."""
 
+import threading
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -8,6 +10,7 @@ import trimesh
 from scipy.sparse.csgraph import connected_components
 
 from meshreg.errors import InputError
+from meshreg.mesh import pages
 from meshreg.mesh.graph import edge_table, face_components, neighbourhood_sums, triangle_areas, turn_counts
 from meshreg.mesh.harmonic import HarmonicMap, factorize, laplacian_blocks
 from meshreg.mesh.ordering import minimum_degree, spatial_order
@@ -260,3 +263,49 @@ def test_a_mesh_edge_pattern_analysed_as_symmetric_gives_the_same_analysis():
     general, shortcut = analyse(pattern), analyse(pattern, symmetric=True)
     for name in ("order", "first", "flat", "off", "head", "following"):
         assert np.array_equal(getattr(general, name), getattr(shortcut, name)), name
+
+
+def _advised() -> bool:
+    """Whether NumPy advises huge pages for new large arrays now."""
+    return bool(np._core.multiarray._get_madvise_hugepage())
+
+
+@pytest.mark.skipif(not hasattr(np, "_core") or pages._switch() is None, reason="NumPy without the switch")
+def test_small_pages_blocks_turn_the_advice_off_until_the_last_ends():
+    switch = pages._switch()
+    before = switch(True)
+    try:
+        first, second = pages.small_pages(), pages.small_pages()
+        first.__enter__()
+        assert not _advised()
+        done = threading.Event()
+
+        def other_thread():
+            with pages.small_pages():
+                assert not _advised()
+                done.wait(5)
+
+        thread = threading.Thread(target=other_thread)
+        thread.start()
+        second.__enter__()
+        first.__exit__(None, None, None)
+        second.__exit__(None, None, None)
+        assert not _advised()  # the other thread's block still runs
+        done.set()
+        thread.join()
+        assert _advised()
+        with pytest.raises(ValueError, match="inside"), pages.small_pages():
+            raise ValueError("inside")
+        assert _advised()
+        seen = []  # the front end runs with the advice off
+        prepare_disk(*random_disk_mesh(bump(), 300, seed=0)[:2], checked=lambda v, f: seen.append(_advised()))
+        assert seen == [False] and _advised()
+        switch(False)
+        with pages.small_pages():
+            pass
+        assert not _advised()  # the setting before, not True
+        with pages.small_pages():
+            disk = prepare_disk(*random_disk_mesh(bump(), 300, seed=0)[:2])
+        assert not _advised() and len(disk.faces) > 0
+    finally:
+        switch(before)

@@ -21,6 +21,7 @@ from .frontal import Analysis, MultifrontalLU, analyse
 from .graph import side_lengths, turn_counts
 from .locate import uv_triangle
 from .ordering import spatial_order
+from .pages import small_pages
 from .topology import DiskMesh, loop_segments, triangle_areas
 
 if TYPE_CHECKING:
@@ -474,6 +475,7 @@ class HarmonicMap:
         return interior_pattern(self.disk, self.interior)
 
     @cached_property
+    @small_pages()
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
         without interior vertices). The LU's ordering and symbolic analysis need only the faces: a second thread

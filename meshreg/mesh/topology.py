@@ -18,6 +18,7 @@ from ..grid import check_scale, coordinates
 from .boundary import sharp_corners
 from .graph import edge_table, face_components, triangle_areas
 from .ordering import spatial_order
+from .pages import small_pages
 from .ply import read_ply
 
 # a mesh whose vertices sit further from the origin than this many times its size has lost the digits of its
@@ -220,6 +221,7 @@ def _edges(faces):
     return directed, first, inverse, counts, np.flatnonzero(counts[inverse] == 1)
 
 
+@small_pages()
 def prepare_disk(
     vertices: np.ndarray,
     faces: np.ndarray,

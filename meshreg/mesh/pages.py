@@ -1,0 +1,79 @@
+"""Memory pages of the mesh front end's large arrays: small (4 kB) ones, not NumPy's transparent huge pages.
+
+NumPy advises Linux to back every array of 4 MB or more with transparent huge pages (2 MB, ``madvise``), which saves
+page faults and TLB misses where huge pages come cheap. On the 2-core virtual machine where the benchmarks run (AMD
+EPYC, Linux 6.18, transparent huge pages on ``madvise``), a fresh process's first writes to huge pages cost about
+3 ms per MB: 300 MB took 0.52-0.93 s, against 0.15-0.18 s with NumPy's advice off (``NUMPY_MADVISE_HUGEPAGE=0``),
+each a fresh process started 3 s after the last. The front end of a 1M-triangle mesh writes about 570 MB of new
+arrays (half of them the LU's factors): in fresh processes alternating with the code before, 2.42-2.82 s (median
+2.61) with small pages against 3.01-3.45 s (median 3.17); the 100k-triangle front end and the two-mesh command were
+the same either way (docs/benchmarks.md, nineteenth session).
+
+:func:`small_pages` turns NumPy's advice off while a block runs (the whole process's new arrays, any thread) and back
+to what it was when the last block of any thread ends. With NumPy builds that lack the switch, it does nothing.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+HUGE_PAGES = False  # True: leave NumPy's huge-page advice as it is in the front end (to measure the difference)
+
+
+def _switch() -> Callable[[bool], bool] | None:
+    """NumPy's switch of its huge-page advice (returns the previous setting), or None."""
+    for name in ("numpy._core.multiarray", "numpy.core.multiarray"):
+        try:
+            return getattr(importlib.import_module(name), "_set_madvise_hugepage", None)
+        except ImportError:
+            continue
+    return None
+
+
+class _Blocks:
+    """How many :func:`small_pages` blocks run, and NumPy's setting before the first."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.running = 0
+        self.saved = True
+
+    def enter(self, switch: Callable[[bool], bool]) -> None:
+        with self.lock:
+            if self.running == 0:
+                self.saved = switch(False)
+            self.running += 1
+
+    def leave(self, switch: Callable[[bool], bool]) -> None:
+        with self.lock:
+            self.running -= 1
+            if self.running == 0:
+                switch(self.saved)
+
+
+_BLOCKS = _Blocks()
+
+
+@contextmanager
+def small_pages() -> Iterator[None]:
+    """Within the block, NumPy does not advise huge pages for new arrays (see the module's notes); blocks may nest
+    and run in several threads at once. Also a decorator.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> with small_pages():
+    ...     factors = np.empty(10**6)
+    """
+    switch = None if HUGE_PAGES else _switch()
+    if switch is None:
+        yield
+        return
+    _BLOCKS.enter(switch)
+    try:
+        yield
+    finally:
+        _BLOCKS.leave(switch)
