@@ -19,6 +19,7 @@ import numpy as np
 
 from .frontal import Analysis, analyse
 from .harmonic import face_pattern, interior_in_space_order
+from .pages import small_pages
 
 # vertices from which the analysis begins before the cleanup: on the 100k-triangle benchmark mesh (50k vertices)
 # the front end took the same time either way; at 500k vertices (1M triangles) it saved 0.3-0.5 s of 3
@@ -61,6 +62,7 @@ def _interior(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return interior_in_space_order(vertices, _rim_vertices(faces, len(vertices)))
 
 
+@small_pages()  # the thread may outlive the cleanup's block
 def _interior_analysis(faces: np.ndarray, interior: np.ndarray, n: int, stop: np.ndarray) -> Analysis:
     """The symbolic analysis of the Laplacian's interior block pattern for a disk of ``n`` vertices with these faces
     and ``interior`` vertices, as :class:`~meshreg.mesh.harmonic.HarmonicMap` computes it."""
