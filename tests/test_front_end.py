@@ -315,9 +315,14 @@ def test_small_pages_blocks_turn_the_advice_off_until_the_last_ends():
         assert not _advised() and len(disk.faces) > 0
         switch(True)
         blocks = pages._Blocks()  # a child forked while a block ran in another thread: no block, the advice back
-        blocks.enter(switch)
-        assert not _advised()
+        blocks.by_thread[-1] = 1
+        blocks.saved = switch(False)
         blocks.forked()
         assert blocks.running == 0 and _advised() and not blocks.lock.locked()
+        blocks.enter(switch)  # forked inside the thread's own block: it goes on, and ends, in the child
+        blocks.forked()
+        assert blocks.running == 1 and not _advised()
+        blocks.leave(switch)
+        assert blocks.running == 0 and _advised()
     finally:
         switch(before)

@@ -19,6 +19,7 @@ from ..schedule import Progress
 from .corners import corner_positions
 from .harmonic import HarmonicMap, edge_length, given_corners
 from .overlap import Overlap, rigid_match, rigid_overlap, warped_overlap
+from .pages import small_pages
 from .partial import register_overlap
 from .resample import blur_grid, blur_sigma, resample_grid
 from .snap import snap_rigid
@@ -81,6 +82,7 @@ class MeshRegistration:
         return inverse_uv(self.result.h, self.result.r, self.result.t, self.uv2)
 
 
+@small_pages()  # large meshes' arrays: see meshreg.mesh.pages
 def register_meshes(
     first, second, options: Options | None = None, callback: Progress | None = None, names=("first mesh", "second mesh")
 ) -> MeshRegistration:

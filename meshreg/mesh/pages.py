@@ -11,7 +11,8 @@ the same either way (docs/benchmarks.md, nineteenth session).
 
 :func:`small_pages` turns NumPy's advice off while a block runs (the whole process's new arrays, any thread) and back
 to what it was when the last block of any thread ends. With NumPy builds that lack the switch, it does nothing. A
-child forked while a block runs starts with no block running and NumPy's setting as it was before the blocks.
+child forked while blocks run keeps those of the thread that forked it (the only thread it has), and without any
+has NumPy's setting as it was before the blocks.
 """
 
 from __future__ import annotations
@@ -36,33 +37,42 @@ def _switch() -> Callable[[bool], bool] | None:
 
 
 class _Blocks:
-    """How many :func:`small_pages` blocks run, and NumPy's setting before the first."""
+    """The :func:`small_pages` blocks running in each thread, and NumPy's setting before the first."""
 
     def __init__(self):
         self.lock = threading.Lock()
-        self.running = 0
+        self.by_thread: dict[int, int] = {}
         self.saved = True
 
+    @property
+    def running(self) -> int:
+        return sum(self.by_thread.values())
+
     def enter(self, switch: Callable[[bool], bool]) -> None:
+        me = threading.get_ident()
         with self.lock:
-            if self.running == 0:
+            if not self.by_thread:
                 self.saved = switch(False)
-            self.running += 1
+            self.by_thread[me] = self.by_thread.get(me, 0) + 1
 
     def leave(self, switch: Callable[[bool], bool]) -> None:
+        me = threading.get_ident()
         with self.lock:
-            self.running -= 1
-            if self.running == 0:
+            self.by_thread[me] -= 1
+            if not self.by_thread[me]:
+                del self.by_thread[me]
+            if not self.by_thread:
                 switch(self.saved)
 
     def forked(self) -> None:
-        """In a child forked while blocks ran in other threads (which the child does not have): none runs."""
+        """In a forked child, which has only the thread that forked: the other threads' blocks are gone, and
+        without blocks of its own NumPy's setting is the one from before the blocks."""
         self.lock = threading.Lock()
-        if self.running:
-            self.running = 0
-            switch = _switch()
-            if switch is not None:
-                switch(self.saved)
+        me = threading.get_ident()
+        self.by_thread = {me: self.by_thread[me]} if me in self.by_thread else {}
+        switch = _switch()
+        if not self.by_thread and switch is not None:
+            switch(self.saved)
 
 
 _BLOCKS = _Blocks()
