@@ -303,9 +303,15 @@ def test_small_pages_blocks_turn_the_advice_off_until_the_last_ends():
         with pytest.raises(ValueError, match="inside"), pages.small_pages():
             raise ValueError("inside")
         assert _advised()
-        seen = []  # the front end runs with the advice off
-        prepare_disk(*random_disk_mesh(bump(), 300, seed=0)[:2], checked=lambda v, f: seen.append(_advised()))
-        assert seen == [False] and _advised()
+        seen = []  # the front end of a large mesh runs with the advice off, of a small one as it is
+        mesh = random_disk_mesh(bump(), 300, seed=0)[:2]
+        prepare_disk(*mesh, checked=lambda v, f: seen.append(_advised()))
+        with pages.small_pages(pages.SMALL_PAGES_MIN - 1):
+            assert _advised()
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(pages, "SMALL_PAGES_MIN", 300)
+            prepare_disk(*mesh, checked=lambda v, f: seen.append(_advised()))
+        assert seen == [True, False] and _advised()
         switch(False)
         with pages.small_pages():
             pass

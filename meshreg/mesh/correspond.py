@@ -82,7 +82,6 @@ class MeshRegistration:
         return inverse_uv(self.result.h, self.result.r, self.result.t, self.uv2)
 
 
-@small_pages()  # large meshes' arrays: see meshreg.mesh.pages
 def register_meshes(
     first, second, options: Options | None = None, callback: Progress | None = None, names=("first mesh", "second mesh")
 ) -> MeshRegistration:
@@ -117,6 +116,12 @@ def register_meshes(
     meshes = [as_input(mesh, name) for mesh, name in zip((first, second), names, strict=True)]
     if not all(isinstance(m, Mesh) for m in meshes):
         raise InputError("register_meshes takes two meshes")
+    with small_pages(max(len(m.vertices) for m in meshes)):  # large meshes' arrays: see meshreg.mesh.pages
+        return _registered_pair(meshes, options, callback)
+
+
+def _registered_pair(meshes: list, options: Options, callback) -> MeshRegistration:
+    """:func:`register_meshes` of two checked meshes (:class:`meshreg.surfaces.Mesh`)."""
     disks, maps, infos = _prepared(meshes, options)
     n_input = (len(meshes[0].vertices), len(meshes[1].vertices))
     if options.overlap == "off":

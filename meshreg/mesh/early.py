@@ -62,14 +62,14 @@ def _interior(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return interior_in_space_order(vertices, _rim_vertices(faces, len(vertices)))
 
 
-@small_pages()  # the thread may outlive the cleanup's block
 def _interior_analysis(faces: np.ndarray, interior: np.ndarray, n: int, stop: np.ndarray) -> Analysis:
     """The symbolic analysis of the Laplacian's interior block pattern for a disk of ``n`` vertices with these faces
     and ``interior`` vertices, as :class:`~meshreg.mesh.harmonic.HarmonicMap` computes it."""
     ni = len(interior)
     place = np.full(n, ni, np.int64)  # every vertex of the boundary after the interior, as in the map
     place[interior] = np.arange(ni)
-    return analyse(face_pattern(faces, place, ni), stop=stop, symmetric=True)
+    with small_pages(n):  # a block of its own: the thread may outlive the cleanup's
+        return analyse(face_pattern(faces, place, ni), stop=stop, symmetric=True)
 
 
 class EarlyAnalysis:

@@ -478,12 +478,16 @@ class HarmonicMap:
         return interior_pattern(self.disk, self.interior)
 
     @cached_property
-    @small_pages()
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
-        without interior vertices). The LU's ordering and symbolic analysis need only the faces: a second thread
-        computes them while this one computes the weights, unless an :class:`~meshreg.mesh.early.EarlyAnalysis`
-        began them before the cleanup (kept when the disk is the mesh it analysed)."""
+        without interior vertices), computed at the first use (:meth:`_factorized`)."""
+        with small_pages(len(self.disk.vertices)):  # large meshes' arrays: see meshreg.mesh.pages
+            return self._factorized()
+
+    def _factorized(self):
+        """:attr:`_system`. The LU's ordering and symbolic analysis need only the faces: a second thread computes
+        them while this one computes the weights, unless an :class:`~meshreg.mesh.early.EarlyAnalysis` began them
+        before the cleanup (kept when the disk is the mesh it analysed)."""
         early = self._early
         try:
             if not len(self.interior):

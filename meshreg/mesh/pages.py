@@ -9,10 +9,10 @@ arrays (half of them the LU's factors): in fresh processes alternating with the 
 2.56) with these blocks against 2.74-3.19 s (median 3.08); the 100k-triangle front end and the two-mesh command were
 the same either way (docs/benchmarks.md, nineteenth session).
 
-:func:`small_pages` turns NumPy's advice off while a block runs (the whole process's new arrays, any thread) and back
-to what it was when the last block of any thread ends. With NumPy builds that lack the switch, it does nothing. A
-child forked while blocks run keeps those of the thread that forked it (the only thread it has), and without any
-has NumPy's setting as it was before the blocks.
+:func:`small_pages` turns NumPy's advice off (for meshes of SMALL_PAGES_MIN vertices or more) while a block runs
+(the whole process's new arrays, any thread) and back to what it was when the last block of any thread ends. With
+NumPy builds that lack the switch, it does nothing. A child forked while blocks run keeps those of the thread that
+forked it (the only thread it has), and without any has NumPy's setting as it was before the blocks.
 """
 
 from __future__ import annotations
@@ -24,6 +24,10 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 HUGE_PAGES = False  # True: leave NumPy's huge-page advice as it is in the front end (to measure the difference)
+# vertices of a mesh from which its front end and registration run in small pages: the 1M-triangle benchmark mesh
+# (500k vertices) gained 0.5 s in a fresh process, the 100k one (50k vertices) nothing, and a 100k pair in a warm
+# process lost 0.05 s of 1.5 (16 alternations)
+SMALL_PAGES_MIN = 100_000
 
 
 def _switch() -> Callable[[bool], bool] | None:
@@ -81,9 +85,14 @@ if hasattr(os, "register_at_fork"):
 
 
 @contextmanager
-def small_pages() -> Iterator[None]:
+def small_pages(vertices: int | None = None) -> Iterator[None]:
     """Within the block, NumPy does not advise huge pages for new arrays (see the module's notes); blocks may nest
-    and run in several threads at once. Also a decorator.
+    and run in several threads at once.
+
+    Parameters
+    ----------
+    vertices : int, optional
+        Of the mesh the block works on: below SMALL_PAGES_MIN the block changes nothing. None: always.
 
     Examples
     --------
@@ -91,7 +100,8 @@ def small_pages() -> Iterator[None]:
     >>> with small_pages():
     ...     factors = np.empty(10**6)
     """
-    switch = None if HUGE_PAGES else _switch()
+    small = vertices is None or vertices >= SMALL_PAGES_MIN
+    switch = None if HUGE_PAGES or not small else _switch()
     if switch is None:
         yield
         return

@@ -221,7 +221,6 @@ def _edges(faces):
     return directed, first, inverse, counts, np.flatnonzero(counts[inverse] == 1)
 
 
-@small_pages()
 def prepare_disk(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -269,7 +268,14 @@ def prepare_disk(
     'filled 1 hole (32 boundary vertices)'
     """
     fill_holes = cleanup if fill_holes is None else fill_holes
-    v, f, order = _space_ordered(*_checked_arrays(vertices, faces))
+    v, f = _checked_arrays(vertices, faces)
+    with small_pages(len(v)):  # large meshes' arrays: see meshreg.mesh.pages
+        return _cleaned(v, f, cleanup, fill_holes, checked)
+
+
+def _cleaned(v: np.ndarray, f: np.ndarray, cleanup: bool, fill_holes: bool, checked) -> DiskMesh:
+    """:func:`prepare_disk` of checked arrays (:func:`_checked_arrays`)."""
+    v, f, order = _space_ordered(v, f)
     if checked is not None:
         checked(v, f)
     given, report = f, []
