@@ -30,6 +30,9 @@ from .ordering import Abandoned, _postorder, symmetric_minimum_degree, symmetric
 
 PANEL = 32  # columns per panel of a large front's factorization (its trailing update is one matrix product)
 UPDATE_ROWS = 256  # rows of a large front's update per matrix product (bounds the product's scratch)
+# columns of the right factor per matrix product of the update block: bounds the copy's scratch (an inner size of
+# ns times all update columns took 6-15 MB more peak memory at 1M triangles)
+UPDATE_COLUMNS = 512
 BLOCKED_MIN = 48  # fronts of at least this many rows (and 8 pivots) are factorized in panels, smaller ones entry-wise
 # relaxed supernodes: a child supernode merges into its parent (adjacent columns) when the merged one has at most
 # RELAX_SIZES[k] columns and explicit zeros make at most RELAX_ZEROS[k] of its entries (the last size: any)
@@ -207,26 +210,29 @@ def _entrywise_lu(front, m, ns):
 @numba.njit(cache=True, error_model="numpy")
 def _subtract_product(front, inner, rows, columns, work):
     """front[rows, columns] -= front[rows, inner] @ front[inner, columns] (front (m, m); ``inner``, ``rows``,
-    ``columns`` as (start, stop)) by matrix products of at most UPDATE_ROWS rows, the right factor copied once
-    (``work``: scratch of at least (inner + 2 UPDATE_ROWS) * columns + UPDATE_ROWS * inner entries)."""
+    ``columns`` as (start, stop)) by matrix products of at most UPDATE_ROWS rows and UPDATE_COLUMNS columns, each block
+    of the right factor copied once (``work``: scratch of at least (inner + UPDATE_ROWS) * UPDATE_COLUMNS +
+    UPDATE_ROWS * inner entries)."""
     c0, c1 = inner
     r0, r1 = rows
-    j0, j1 = columns
-    width, span = c1 - c0, j1 - j0
-    if width == 0 or span == 0 or r1 <= r0:
+    width = c1 - c0
+    if width == 0 or r1 <= r0:
         return
-    right = work[: width * span].reshape((width, span))
-    right[:] = front[c0:c1, j0:j1]
-    used = width * span
-    for a0 in range(r0, r1, UPDATE_ROWS):
-        a1 = min(a0 + UPDATE_ROWS, r1)
-        left = work[used : used + (a1 - a0) * width].reshape((a1 - a0, width))
-        product = work[used + (a1 - a0) * width : used + (a1 - a0) * (width + span)].reshape((a1 - a0, span))
-        left[:] = front[a0:a1, c0:c1]
-        np.dot(left, right, product)
-        for i in range(a1 - a0):
-            for j in range(span):
-                front[a0 + i, j0 + j] -= product[i, j]
+    for b0 in range(columns[0], columns[1], UPDATE_COLUMNS):
+        b1 = min(b0 + UPDATE_COLUMNS, columns[1])
+        span = b1 - b0
+        right = work[: width * span].reshape((width, span))
+        right[:] = front[c0:c1, b0:b1]
+        used = width * span
+        for a0 in range(r0, r1, UPDATE_ROWS):
+            a1 = min(a0 + UPDATE_ROWS, r1)
+            left = work[used : used + (a1 - a0) * width].reshape((a1 - a0, width))
+            product = work[used + (a1 - a0) * width : used + (a1 - a0) * (width + span)].reshape((a1 - a0, span))
+            left[:] = front[a0:a1, c0:c1]
+            np.dot(left, right, product)
+            for i in range(a1 - a0):
+                for j in range(span):
+                    front[a0 + i, b0 + j] -= product[i, j]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -327,7 +333,7 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
     n = len(order)
     mmax = max([first[s + 1] - first[s] + off[s + 1] - off[s] for s in seq]) if len(seq) else 0
     buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.full(n, -1, np.int64)
-    work = np.empty(mmax * mmax // 4 + (PANEL + 2 * UPDATE_ROWS) * mmax)  # _subtract_product's scratch
+    work = np.empty((UPDATE_ROWS + UPDATE_COLUMNS) * (mmax + UPDATE_ROWS))  # _subtract_product's scratch
     stack, tops, depth = np.empty(1 << 16), np.zeros(len(seq) + 1, np.int64), 0
     for s in seq:
         f, last = first[s], first[s + 1]

@@ -214,10 +214,10 @@ def _assemble(start, bucket_col, bucket_val, n, ni):
         mark[r] = -1
         for p in range(start[r], start[r + 1]):
             mark[bucket_col[p]] = -1
-    # copies: a slice would keep the whole buffer (a weight per face corner) alive with the matrix (at 1M triangles
-    # 52 MB under the block's 28 and 48 MB under the coupling's few entries)
-    block = (ptr[0], ind[0][: ptr[0][ni]].copy(), val[0][: ptr[0][ni]].copy())
-    return (*block, ptr[1], ind[1][: ptr[1][ni]].copy(), val[1][: ptr[1][ni]].copy())
+    # the coupling copied: a slice would keep its whole buffer (a weight per face corner, 48 MB at 1M triangles) alive
+    # for the map's life; the block's rows serve the LU only, and a copy would raise the front end's peak memory
+    coupling = (ptr[1], ind[1][: ptr[1][ni]].copy(), val[1][: ptr[1][ni]].copy())
+    return ptr[0], ind[0][: ptr[0][ni]], val[0][: ptr[0][ni]], *coupling
 
 
 def laplacian_blocks(disk: DiskMesh, interior: np.ndarray, weights: str) -> tuple[sp.csc_matrix, sp.csr_matrix]:
