@@ -30,8 +30,8 @@ from .ordering import Abandoned, _postorder, symmetric_minimum_degree, symmetric
 
 PANEL = 32  # columns per panel of a large front's factorization (its trailing update is one matrix product)
 UPDATE_ROWS = 256  # rows of a large front's update per matrix product (bounds the product's scratch)
-# columns of the right factor per matrix product of the update block: bounds the copy's scratch (an inner size of
-# ns times all update columns took 6-15 MB more peak memory at 1M triangles)
+# columns of the right factor per matrix product of the update block: bounds the copy's scratch (the whole right
+# factor, ns times the update columns, grows with the square of the front)
 UPDATE_COLUMNS = 512
 BLOCKED_MIN = 48  # fronts of at least this many rows (and 8 pivots) are factorized in panels, smaller ones entry-wise
 # relaxed supernodes: a child supernode merges into its parent (adjacent columns) when the merged one has at most

@@ -26,7 +26,7 @@ from contextlib import contextmanager
 HUGE_PAGES = False  # True: leave NumPy's huge-page advice as it is in the front end (to measure the difference)
 # vertices of a mesh from which its front end and registration run in small pages: the 1M-triangle benchmark mesh
 # (500k vertices) gained 0.5 s in a fresh process, the 100k one (50k vertices) nothing, and a 100k pair in a warm
-# process lost 0.05 s of 1.5 (16 alternations)
+# process lost 0.05 s of 1.5 (mean of 16 runs each way)
 SMALL_PAGES_MIN = 100_000
 
 
