@@ -453,10 +453,14 @@ def main(argv: list[str] | None = None) -> int:
 def run() -> None:
     """The console command: :func:`main`, then a quick exit. Once nothing else runs (no other thread, no child
     process), the exit handlers run and the process ends without the interpreter's teardown, which only frees what
-    the system reclaims anyway (modules, numba's compiled code: 0.1-0.3 s after a registration)."""
+    the system reclaims anyway (modules, numba's compiled code: 0.1-0.3 s after a registration). NumPy's tool
+    submodules that SciPy's import touches load only if used (:func:`meshreg.startup.defer_numpy_tools`)."""
     import atexit
     import multiprocessing
 
+    from .startup import defer_numpy_tools
+
+    defer_numpy_tools()
     code = main()
     try:
         sys.stdout.flush()

@@ -159,6 +159,21 @@ def test_version_and_a_quick_help_that_loads_no_numerics():
     assert proc.stdout.strip() == "[]"  # --help builds the parser without loading the numerical libraries
 
 
+def test_the_command_defers_numpy_tools_that_scipy_touches_until_they_are_used():
+    code = (
+        "import sys; from meshreg.startup import defer_numpy_tools; defer_numpy_tools(); "
+        "import scipy.sparse, numpy as np; "
+        "print(sorted(n for n in ('numpy.f2py.crackfortran', 'numpy.ma.core', 'numpy.testing._private.utils') "
+        "if n in sys.modules)); "
+        "print(float(np.ma.masked_array([1.0, 2.0], mask=[0, 1]).sum())); np.testing.assert_allclose(1.0, 1.0); "
+        "import numpy.f2py; print(callable(numpy.f2py.run_main), type(np.ma).__name__)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    # not executed by SciPy's import; the real modules once used
+    assert proc.stdout.split("\n")[:3] == ["[]", "1.0", "True module"]
+
+
 @pytest.mark.slow
 def test_demo_checks_its_own_answer(tmp_path):
     proc = subprocess.run(
