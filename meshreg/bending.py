@@ -38,7 +38,7 @@ from .grid import GridSurface
 from .local_rotation import LocalObjective, local_energy
 from .objective import Objective
 from .options import Options
-from .residual import Residual
+from .residual import Residual, metric_residual
 from .result import Registration
 from .rotation import similarity
 from .schedule import Descent, Log, Progress, work_objective
@@ -58,6 +58,12 @@ CHOICE_MARGIN = 0.1  # symmetries whose E_w at the start is within this fraction
 RESIDUAL_TIE = 3.0
 RESIDUAL_GAIN = 0.5
 RESIDUAL_FLOOR = 0.1
+# a match that fits the points (residual below RESIDUAL_FLOOR) replaces the lowest E_w's that does not only if its
+# metric residual (meshreg.residual.metric_residual, the surfaces' first fundamental forms compared) is at most this
+# many times the lowest's: a bent pair's right match moves the points but keeps the metric (a disc rolled a quarter
+# turn: the right placement at residual 0.38 and metric 0.083, a placement turned 0.15 of its rim at residual 0.04 and
+# metric 0.124), while a half-turned match of a nearly symmetric shape keeps it about as well as the right one
+METRIC_VETO = 1.3
 # a twin of the answer (a symmetry of either surface applied to it) is refined only when its residual as it stands
 # is within this of the answer's (area-1 length): measured 0.002-0.009 above on a four-fold symmetric sheet's
 # remeshed copy (true twins), 0.096 and more on the folded relief sheet (a flat square's symmetries, not the fold's)
@@ -101,11 +107,14 @@ def symmetry_energies(
     return sorted(out, key=lambda x: x[1])
 
 
-def preferred(energies, residuals) -> int:
+def preferred(energies, residuals, metrics=None) -> int:
     """Index of the preferred match among matches with ``energies`` (E_w, (m,)) and coordinate ``residuals`` (m,):
     the lowest E_w, unless it does not fit the points (residual at least RESIDUAL_FLOOR) and a match within
     RESIDUAL_TIE times its E_w does (residual below RESIDUAL_FLOOR and below RESIDUAL_GAIN times the lowest's); then
-    the lowest residual among those within RESIDUAL_TIE.
+    the lowest residual among those within RESIDUAL_TIE. With ``metrics`` (m,), the matches' metric residuals
+    (:func:`meshreg.residual.metric_residual`), only to a match whose metric residual is at most METRIC_VETO times
+    the lowest E_w's: a bent pair's right match does not fit the points (the bend moves them) but keeps the metric,
+    and a wrong one can fit the points better.
 
     >>> preferred([0.0052, 0.0066, 0.0200], [0.252, 0.024, 0.001])
     1
@@ -115,6 +124,8 @@ def preferred(energies, residuals) -> int:
     0
     >>> preferred([0.0655, 0.0813], [0.663, 0.132])  # a sheet rolled half a turn: neither fits the points
     0
+    >>> preferred([0.0052, 0.0066], [0.252, 0.024], metrics=[0.08, 0.12])  # the lowest keeps the metric
+    0
 
     A NaN counts as infinite (last).
     """
@@ -123,6 +134,9 @@ def preferred(energies, residuals) -> int:
     tied = np.flatnonzero(energies <= RESIDUAL_TIE * energies[best])
     fit = int(tied[np.argmin(residuals[tied])])
     fits = residuals[fit] < min(RESIDUAL_FLOOR, RESIDUAL_GAIN * residuals[best])
+    if metrics is not None:
+        metrics = np.nan_to_num(np.asarray(metrics, dtype=float), nan=np.inf)
+        fits = fits and metrics[fit] <= METRIC_VETO * metrics[best]
     return fit if residuals[best] >= RESIDUAL_FLOOR and fits else best
 
 
@@ -212,7 +226,9 @@ def _ranked_symmetries(first: GridSurface, second: GridSurface, options: Options
     fair = [(k, e, r) for k, e, mirrored, r in ranked if not mirrored]
     if not fair:
         raise every_start_mirrored(symmetry)
-    fair.insert(0, fair.pop(preferred([e for _, e, _ in fair], [r for *_, r in fair])))
+    a, b = coarse(first), coarse(second)
+    metrics = [metric_residual(a.points, apply_symmetry(b, k).points) for k, *_ in fair]
+    fair.insert(0, fair.pop(preferred([e for _, e, _ in fair], [r for *_, r in fair], metrics)))
     close = [k for k, e, _ in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
     return ranked, close, [k for k, *_ in fair if k not in close]
 
@@ -279,7 +295,8 @@ def _unmirrored(close: list[int], spare: list[int], descend) -> tuple[BentRun, l
             raise every_match_mirrored(min(run.energy for run in runs))
         runs.append(descend(spare.pop(0)))
     fair = [run for run in runs if not run.residual.mirrored]
-    return fair[preferred([run.bend_energy for run in fair], [run.residual.plus for run in fair])], runs
+    energies, residuals = [run.bend_energy for run in fair], [run.residual.plus for run in fair]
+    return fair[preferred(energies, residuals, [run.metric for run in fair])], runs
 
 
 def _mirror_starts(ranked, chosen: int) -> tuple[Start | None, Start]:
@@ -303,6 +320,7 @@ class BentRun:
     residual: Residual
     log: Log
     fit_residual: float  # the coordinate residual at h = the symmetry (the parametrizations' correspondence)
+    metric: float  # the metric residual of the answer (meshreg.residual.metric_residual)
 
     @property
     def scaled(self) -> bool:
@@ -347,4 +365,5 @@ def _descend(first, start, area, k, window, options, finest, log) -> BentRun:
     rotation, h = drive.polish(rotation, h, log)
     rotation, energy, residual = plain.judge(h)
     bend_energy = float(objective.energy(rotation, h))
-    return BentRun(k, plain, rotation, h, float(energy), bend_energy, residual, log, fit)
+    metric = metric_residual(plain.first.points, plain.points(h))
+    return BentRun(k, plain, rotation, h, float(energy), bend_energy, residual, log, fit, metric)

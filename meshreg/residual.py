@@ -99,3 +99,41 @@ def coordinate_residual(first: np.ndarray, second: np.ndarray, weights: np.ndarr
     plus = float(np.sqrt(np.sum(w * (a - b) ** 2)))
     minus = float(np.sqrt(np.sum(w * (a + b) ** 2)))
     return Residual(plus, minus)
+
+
+def metric_residual(first: np.ndarray, second: np.ndarray) -> float:
+    """How far two grid surfaces' first fundamental forms are apart at corresponding cells, relative to the first's:
+    the RMS over cells of the difference of (E, F, G) = (c_u . c_u, c_u . c_v, c_v . c_v), by index steps, both
+    surfaces scaled to area 1, over the RMS of the first's (F counted twice, as in the Frobenius norm of the form).
+
+    The form is intrinsic: a surface bent without stretching keeps it, while its points move (its coordinate
+    residual grows with the bend) and its normals turn. So among matches of one surface bent isometrically, the
+    right correspondence has a metric residual near 0 however strong the bend; a match turned or slid along the
+    surface compares its relief's slopes at the wrong places.
+
+    Parameters
+    ----------
+    first, second : ndarray, shape (M, N, 3)
+        Points at corresponding nodes (the second under the symmetry of the square being judged).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> r = np.linspace(0.0, 1.0, 21)
+    >>> u, v = np.meshgrid(r, r, indexing="ij")
+    >>> flat = np.stack([u, v, 0.1 * np.sin(3 * u) * v], axis=-1)
+    >>> bent = np.stack([np.sin(u), v, 1.0 - np.cos(u)], axis=-1)  # the plane rolled about an axis: no stretch
+    >>> plane = np.stack([u, v, 0.0 * u], axis=-1)
+    >>> metric_residual(plane, bent) < 0.01 < metric_residual(flat, bent)
+    True
+    """
+    forms = []
+    for points in (first, second):
+        du = 0.5 * (points[1:, :-1] - points[:-1, :-1] + points[1:, 1:] - points[:-1, 1:])
+        dv = 0.5 * (points[:-1, 1:] - points[:-1, :-1] + points[1:, 1:] - points[1:, :-1])
+        form = np.stack([np.sum(du * du, -1), np.sum(du * dv, -1), np.sum(dv * dv, -1)], axis=-1)
+        area = np.sum(np.linalg.norm(np.cross(du, dv), axis=-1))
+        forms.append(form / area if area > 0 else np.full_like(form, np.nan))
+    weight = np.array([1.0, 2.0, 1.0])
+    own = np.sum(weight * forms[0] ** 2)
+    return float(np.sqrt(np.sum(weight * (forms[0] - forms[1]) ** 2) / own)) if own > 0 else np.nan

@@ -11,11 +11,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bending import CHOICE_GRID, RESIDUAL_FLOOR, choice_symmetries, coarse, preferred, symmetry_energies
+from ..bending import (
+    CHOICE_GRID,
+    METRIC_VETO,
+    RESIDUAL_FLOOR,
+    choice_symmetries,
+    coarse,
+    preferred,
+    symmetry_energies,
+)
 from ..errors import InputError
 from ..grid import GridSurface
 from ..options import Options
-from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES
+from ..residual import metric_residual
+from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry
 from .early import EarlyAnalysis
 from .harmonic import (
     HarmonicMap,
@@ -106,13 +115,21 @@ def placement_corners(hmap: HarmonicMap, trials: int) -> list[np.ndarray]:
     return [quarter_corners(disk, start % 1.0) for start in placement_starts(disk, trials, start=own_start(hmap))]
 
 
-def placement_rank(coarse1: GridSurface, grid: GridSurface, window: float, symmetries) -> tuple[float, float, int]:
-    """(E_w, coordinate residual, symmetry) of one corner placement of the second surface, ``grid``, against the
-    first's ``coarse1``: its preferred symmetry of the square (:func:`_best` of
+def placement_rank(
+    coarse1: GridSurface, grid: GridSurface, window: float, symmetries
+) -> tuple[float, float, int, float]:
+    """(E_w, coordinate residual, symmetry, metric residual) of one corner placement of the second surface,
+    ``grid``, against the first's ``coarse1``: its preferred symmetry of the square (:func:`_best` of
     :func:`meshreg.bending.symmetry_energies` over ``symmetries`` at h = the symmetry, windows of ``window``),
-    mirrored matches aside, with its E_w and residual; (inf, inf, 0) when every match is mirrored (ranked last)."""
-    fair = [(e, r, k) for k, e, mirrored, r in symmetry_energies(coarse1, grid, window, symmetries) if not mirrored]
-    return fair[_best(fair)] if fair else (np.inf, np.inf, 0)
+    mirrored matches aside, with its E_w, residual and :func:`~meshreg.residual.metric_residual`; (inf, inf, 0, inf)
+    when every match is mirrored (ranked last)."""
+    second = grid if grid.points.shape == coarse1.points.shape else coarse(grid, coarse1.points.shape[0])
+    fair = [
+        (e, r, k, metric_residual(coarse1.points, apply_symmetry(second, k).points))
+        for k, e, mirrored, r in symmetry_energies(coarse1, grid, window, symmetries)
+        if not mirrored
+    ]
+    return fair[_best(fair)] if fair else (np.inf, np.inf, 0, np.inf)
 
 
 def best_placement(first: GridSurface, placements: list[GridSurface], options: Options) -> list[tuple[int, int, float]]:
@@ -228,7 +245,7 @@ def _snug(rank, chosen: tuple[float, tuple], step: float) -> tuple[float, list]:
     round about its middle (a cap, a cone, a torus patch: the lowest E_w 2-6 degrees off the right placement on
     held-out disk-rim meshes), and the registration cannot undo it: the corners stay where they were placed. The
     points pin the placement of one unbent surface sharply."""
-    start, (_, residual, symmetry) = chosen
+    start, (_, residual, symmetry, *_) = chosen
     if not residual < SNUG_RESIDUAL:
         return start, []
 
@@ -241,20 +258,24 @@ def _snug(rank, chosen: tuple[float, tuple], step: float) -> tuple[float, list]:
 
 
 def _fitting(tried: list[tuple[float, tuple]]) -> tuple[float, tuple] | None:
-    """The entry (start, (E_w, residual, ...)) of ``tried`` that fits the points best when the best start's
-    (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR (it does not fit the points), its own is below
-    RESIDUAL_FLOOR (it does) and its E_w within FITTING_REACH times the best's; else None."""
-    ranks = np.array([r[:2] for _, r in tried])
-    energy, residual = ranks[_best(ranks)]
+    """The entry (start, (E_w, residual, symmetry, metric residual)) of ``tried`` that fits the points best when the
+    best start's (:func:`_best`) coordinate residual is at least RESIDUAL_FLOOR (it does not fit the points), its own
+    is below RESIDUAL_FLOOR (it does), its E_w within FITTING_REACH times the best's and its metric residual within
+    METRIC_VETO times the best's (a bent pair's right placement does not fit the points:
+    :func:`meshreg.bending.preferred`); else None."""
+    ranks = np.array([r for _, r in tried], dtype=float)
+    energy, residual, _, metric = ranks[_best(ranks)]
     if not residual >= RESIDUAL_FLOOR:  # the best fits the points (or is NaN): nothing to refine
         return None
     near = (ranks[:, 0] <= FITTING_REACH * energy) & (ranks[:, 1] < RESIDUAL_FLOOR)
+    near &= ranks[:, 3] <= METRIC_VETO * metric
     return tried[int(np.argmin(np.where(near, ranks[:, 1], np.inf)))] if near.any() else None
 
 
 def _best(ranks: list[tuple]) -> int:
-    """Index of the best of (E_w, coordinate residual, ...) ranks: :func:`meshreg.bending.preferred`."""
-    return preferred([r[0] for r in ranks], [r[1] for r in ranks])
+    """Index of the best of (E_w, coordinate residual, symmetry, metric residual) ranks:
+    :func:`meshreg.bending.preferred`, with the metric residuals."""
+    return preferred([r[0] for r in ranks], [r[1] for r in ranks], [r[3] for r in ranks])
 
 
 def mesh_grids(vertices: np.ndarray, faces: np.ndarray, options: Options, arcs: bool = False):
