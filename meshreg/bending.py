@@ -91,19 +91,21 @@ def coarse(surface: GridSurface, n: int = CHOICE_GRID) -> GridSurface:
 
 def symmetry_energies(
     first: GridSurface, second: GridSurface, window: float, tried
-) -> list[tuple[int, float, bool, float]]:
-    """(symmetry, E_w at h = that symmetry, whether that match is mirrored, its coordinate residual) for each
-    symmetry of the square in ``tried``, lowest E_w first. Both surfaces are ranked on :func:`coarse` grids with
-    windows of ``window`` (side lengths); a match is mirrored when the first, rotated by Kabsch, lies on the point
-    reflection of the second (:mod:`meshreg.residual`): E_w, like E, cannot tell them apart. The residual is the
-    area-weighted RMS of R c1 - c2 at area 1 (:class:`~meshreg.residual.Residual`)."""
+) -> list[tuple[int, float, bool, float, float]]:
+    """(symmetry, E_w at h = that symmetry, whether that match is mirrored, its coordinate residual, its metric
+    residual) for each symmetry of the square in ``tried``, lowest E_w first. Both surfaces are ranked on
+    :func:`coarse` grids with windows of ``window`` (side lengths); a match is mirrored when the first, rotated by
+    Kabsch, lies on the point reflection of the second (:mod:`meshreg.residual`): E_w, like E, cannot tell them
+    apart. The residual is the area-weighted RMS of R c1 - c2 at area 1 (:class:`~meshreg.residual.Residual`), the
+    metric residual :func:`~meshreg.residual.metric_residual` (for :func:`preferred`)."""
     a, b = coarse(first), coarse(second)
     out = []
     for k in tried:
         copy = apply_symmetry(b, k)
         plain = Objective(a, copy, copy.area())
         residual = plain.judge(plain.identity)[2]
-        out.append((k, local_energy(a.points, copy.points, a.r, a.t, window), residual.mirrored, residual.plus))
+        energy = local_energy(a.points, copy.points, a.r, a.t, window)
+        out.append((k, energy, residual.mirrored, residual.plus, metric_residual(a.points, copy.points)))
     return sorted(out, key=lambda x: x[1])
 
 
@@ -223,13 +225,12 @@ def _ranked_symmetries(first: GridSurface, second: GridSurface, options: Options
     CHOICE_MARGIN of the :func:`preferred` unmirrored one (at most ``options.max_starts``: descended first, the
     preferred one first) and the other unmirrored ones (spares, best first)."""
     ranked = symmetry_energies(first, second, options.advanced.choice_window, choice_symmetries(options, symmetry))
-    fair = [(k, e, r) for k, e, mirrored, r in ranked if not mirrored]
+    fair = [(k, e, r, m) for k, e, mirrored, r, m in ranked if not mirrored]
     if not fair:
         raise every_start_mirrored(symmetry)
-    a, b = coarse(first), coarse(second)
-    metrics = [metric_residual(a.points, apply_symmetry(b, k).points) for k, *_ in fair]
-    fair.insert(0, fair.pop(preferred([e for _, e, _ in fair], [r for *_, r in fair], metrics)))
-    close = [k for k, e, _ in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
+    energies, residuals, metrics = ([x[i] for x in fair] for i in (1, 2, 3))
+    fair.insert(0, fair.pop(preferred(energies, residuals, metrics)))
+    close = [k for k, e, *_ in fair if e <= (1.0 + CHOICE_MARGIN) * fair[0][1]][: options.max_starts]
     return ranked, close, [k for k, *_ in fair if k not in close]
 
 
@@ -267,7 +268,7 @@ def _params(options: Options, chosen, runs, ranked, window: float, first: GridSu
         "bend_scaled": chosen.scaled,
         "symmetry_ranking": [
             {"symmetry": s, "choice_energy": float(e), "mirrored": m, "choice_residual": float(r)}
-            for s, e, m, r in ranked
+            for s, e, m, r, _ in ranked
         ],
         "mirror": mirror_record(*_mirror_starts(ranked, chosen.symmetry), chosen.residual.plus),
         "starts": [
@@ -302,7 +303,7 @@ def _unmirrored(close: list[int], spare: list[int], descend) -> tuple[BentRun, l
 def _mirror_starts(ranked, chosen: int) -> tuple[Start | None, Start]:
     """The best mirrored entry of the E_w ranking and the chosen one, as starts for
     :func:`~meshreg.choice.mirror_record` (their ``coarse_energy`` is E_w at h = the symmetry)."""
-    mirror = next((Start(k, None, e) for k, e, mirrored, _ in ranked if mirrored), None)
+    mirror = next((Start(k, None, e) for k, e, mirrored, *_ in ranked if mirrored), None)
     return mirror, next(Start(k, None, e) for k, e, *_ in ranked if k == chosen)
 
 

@@ -313,11 +313,13 @@ def test_a_nearly_as_low_symmetry_that_fits_the_points_is_descended_first_and_ch
     saddle's numbers (the half-turned match at E_w 0.0052 with residual 0.25, the right one 1.27x that with 0.024)."""
     from meshreg import bending
 
-    ranking = [(1, 0.0052, False, 0.252), (2, 0.0055, True, 0.9), (0, 0.0066, False, 0.024), (5, 0.02, False, 0.01)]
+    ranking = [  # (symmetry, E_w, mirrored, residual, metric residual): every match keeps the metric
+        (1, 0.0052, False, 0.252, 0.1),
+        (2, 0.0055, True, 0.9, 0.1),
+        (0, 0.0066, False, 0.024, 0.1),
+        (5, 0.02, False, 0.01, 0.1),
+    ]
     monkeypatch.setattr(bending, "symmetry_energies", lambda *args: ranking)
-    monkeypatch.setattr(bending, "coarse", lambda surface: SimpleNamespace(points=None))
-    monkeypatch.setattr(bending, "apply_symmetry", lambda surface, k: SimpleNamespace(points=k))
-    monkeypatch.setattr(bending, "metric_residual", lambda first, second: 0.1)  # every match keeps the metric
     _, close, spare = bending._ranked_symmetries(None, None, Options(), None)
     assert close == [0, 1] and spare == [5]  # the one that fits first; the lowest within 10% of it descended too
     _, close, spare = bending._ranked_symmetries(None, None, Options(max_starts=1), None)

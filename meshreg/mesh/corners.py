@@ -23,8 +23,7 @@ from ..bending import (
 from ..errors import InputError
 from ..grid import GridSurface
 from ..options import Options
-from ..residual import metric_residual
-from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES, apply_symmetry
+from ..search import ORIENTATION_PRESERVING, SQUARE_SYMMETRIES
 from .early import EarlyAnalysis
 from .harmonic import (
     HarmonicMap,
@@ -121,13 +120,10 @@ def placement_rank(
     """(E_w, coordinate residual, symmetry, metric residual) of one corner placement of the second surface,
     ``grid``, against the first's ``coarse1``: its preferred symmetry of the square (:func:`_best` of
     :func:`meshreg.bending.symmetry_energies` over ``symmetries`` at h = the symmetry, windows of ``window``),
-    mirrored matches aside, with its E_w, residual and :func:`~meshreg.residual.metric_residual`; (inf, inf, 0, inf)
+    mirrored matches aside, with its E_w, residual and metric residual; (inf, inf, 0, inf)
     when every match is mirrored (ranked last)."""
-    second = grid if grid.points.shape == coarse1.points.shape else coarse(grid, coarse1.points.shape[0])
     fair = [
-        (e, r, k, metric_residual(coarse1.points, apply_symmetry(second, k).points))
-        for k, e, mirrored, r in symmetry_energies(coarse1, grid, window, symmetries)
-        if not mirrored
+        (e, r, k, m) for k, e, mirrored, r, m in symmetry_energies(coarse1, grid, window, symmetries) if not mirrored
     ]
     return fair[_best(fair)] if fair else (np.inf, np.inf, 0, np.inf)
 
