@@ -52,6 +52,28 @@ def test_two_threads_give_the_same_bits_as_one(monkeypatch):
     assert np.all(_parents(two.analysis)[roots] >= 0) and np.isin(_parents(two.analysis)[roots], top).all()
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_stack_of_update_matrices_is_sized_once_to_its_peak(monkeypatch, threads):
+    """Each sequence's stack starts at the most it holds (:func:`frontal._stack_need`): counted here another way,
+    after each supernode, as the updates of the supernodes done whose parent is not (those not handed to the top)."""
+    monkeypatch.setattr(frontal, "THREADS_MIN", 0)
+    an = analyse(_planar_m_matrix(6000, 3), threads=threads)
+    bins, top, roots = an.schedule
+    nu = np.diff(an.off)
+    parent = _parents(an)
+    handed = np.zeros(len(nu), bool)
+    handed[roots] = True
+    ext_off = np.where(handed, 0, -1)
+    for seq in [*bins, top]:
+        done, peak = np.zeros(len(nu), bool), 1
+        for s in seq:
+            done[s] = True
+            waiting = done & ~handed & (nu > 0) & ~np.isin(parent, seq[done[seq]])
+            peak = max(peak, int((nu[waiting] ** 2).sum()))
+        assert frontal._stack_need(seq, an.off, an.head, an.following, ext_off) == peak
+    assert max(frontal._stack_need(b, an.off, an.head, an.following, ext_off) for b in [*bins, top]) > 1000
+
+
 def _parents(an) -> np.ndarray:
     """Each supernode's parent supernode (-1 at a root): the owner of its lowest update row."""
     nsup = len(an.first) - 1

@@ -324,6 +324,29 @@ def _room(stack, need):
     return grown
 
 
+@numba.njit(cache=True, nogil=True)
+def _stack_need(seq, off, head, following, ext_off):
+    """The most entries (at least 1) that :func:`_factor_sequence` holds at once on its stack of update matrices
+    for ``seq``: each supernode pops its children's (those with ext_off < 0) and pushes its own (nu^2 entries)
+    unless it leaves it in ``ext``."""
+    sizes = np.zeros(len(seq) + 1, np.int64)
+    depth, held, most = 0, 0, 1
+    for s in seq:
+        c = head[s]
+        while c != -1:
+            if ext_off[c] < 0:
+                depth -= 1
+                held -= sizes[depth]
+            c = following[c]
+        nu = off[s + 1] - off[s]
+        if nu > 0 and ext_off[s] < 0:
+            sizes[depth] = nu * nu
+            depth += 1
+            held += nu * nu
+            most = max(most, held)
+    return most
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, factors, offsets):
     """Factorizes the supernodes ``seq`` (increasing; each one's children either in ``seq`` before it or with
@@ -334,7 +357,10 @@ def _factor_sequence(csc, csr, order, inv, first, tree, seq, ext_off, ext, facto
     mmax = max([first[s + 1] - first[s] + off[s + 1] - off[s] for s in seq]) if len(seq) else 0
     buffer, rel, loc = np.empty(mmax * mmax), np.empty(mmax, np.int64), np.full(n, -1, np.int64)
     work = np.empty((UPDATE_ROWS + UPDATE_COLUMNS) * (mmax + UPDATE_ROWS))  # _subtract_product's scratch
-    stack, tops, depth = np.empty(1 << 16), np.zeros(len(seq) + 1, np.int64), 0
+    # the stack starts at the size it will reach: grown on the way, each copy left its old block as a hole in the
+    # heap (32 MB of the 1M-triangle front end's peak)
+    stack = np.empty(_stack_need(seq, off, head, following, ext_off))
+    tops, depth = np.zeros(len(seq) + 1, np.int64), 0
     for s in seq:
         f, last = first[s], first[s + 1]
         ns, nu = last - f, off[s + 1] - off[s]
