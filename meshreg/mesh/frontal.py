@@ -316,7 +316,9 @@ def _store(front, m, ns, nu, s, factors, offsets):
 
 @numba.njit(cache=True, inline="always")
 def _room(stack, need):
-    """The stack of update matrices, grown (by a quarter, or to ``need``) when shorter than ``need`` entries."""
+    """The stack of update matrices, grown (by a quarter, or to ``need``) when shorter than ``need`` entries: a
+    guard, since the stack is allocated at the size :func:`_stack_need` counts (a count that fell short would
+    otherwise write past its end: numba does not check bounds)."""
     if need <= len(stack):
         return stack
     grown = np.empty(max(len(stack) + len(stack) // 4, need))
