@@ -98,7 +98,7 @@ def polish_stalled(
     -------
     (Residual, dict or None)
         The answer's residual, and what the polish did (None when it did not run): E and residual before and
-        after, whether the polished answer was kept, seconds.
+        after, whether the polished answer was kept, the POLISH_KEEP_RESIDUAL that decided it, seconds.
     """
     if options.mode == "dp" or options.refine != "nodes" or not is_stalled(candidate.energy, residual):
         return residual, None
@@ -117,6 +117,7 @@ def polish_stalled(
         "kept": bool(
             energy < candidate.energy and found.plus <= POLISH_KEEP_RESIDUAL * residual.plus and not found.mirrored
         ),
+        "keep_residual": POLISH_KEEP_RESIDUAL,
     }
     if record["kept"]:
         _take(candidate, rotation, h, energy, found, trial)
