@@ -165,7 +165,6 @@ def write_mesh_registration(
             _registration_figure(painter, result, *mr.grids, stage / FIGURE_FILE, title)
             (v1, f1), (v2, f2) = (first.vertices, first.faces), (second.vertices, second.faces)
             c1, c2, registered = colored_outputs(mr, len(v1), len(v2))
-            on_second = result.correspondence()
             # queued as soon as its data is there: the worker is still drawing registration.png
             painter.draw(
                 "plot_meshes",
@@ -180,6 +179,7 @@ def write_mesh_registration(
                 second_to_first=np.linalg.inv(result.transform),
                 distance=result.distances() / np.sqrt(result.second.area()),
             )
+            on_second = result.correspondence()
             # result.correspondence_on_first(), from the second's matches on the first's square already found
             on_first = result.first.at_uv(mr.second.to_input(mr.matched_uv2, len(v2), [np.nan, np.nan]))[0]
             uv = {"uv_first": result.first.input_uv(), "uv_second": result.second.input_uv()}

@@ -139,7 +139,7 @@ def test_minimum_degree_lists_in_32_and_64_bits_give_one_order():
     for kind in (np.int32, np.int64):
         iw = np.empty(cnz + cnz // 5 + 2 * n, kind)
         iw[:cnz] = rows[:cnz]
-        results.append(_amd(pe.astype(kind), iw, cnz, np.zeros(1, np.bool_)))
+        results.append(_amd(pe.astype(kind), iw, cnz, np.zeros(1, np.bool_), np.zeros(n, np.bool_)))
     assert results[0][2] and results[1][2]
     assert np.array_equal(results[0][0], results[1][0]) and np.array_equal(results[0][1], results[1][1])
 

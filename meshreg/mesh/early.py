@@ -17,7 +17,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numba
 import numpy as np
 
-from .frontal import Analysis, analyse
+from .frontal import Analysis, analyse, ordered_in_space
 from .harmonic import face_pattern, interior_in_space_order
 from .pages import small_pages
 
@@ -62,14 +62,17 @@ def _interior(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return interior_in_space_order(vertices, _rim_vertices(faces, len(vertices)))
 
 
-def _interior_analysis(faces: np.ndarray, interior: np.ndarray, n: int, stop: np.ndarray) -> Analysis:
+def _interior_analysis(
+    faces: np.ndarray, interior: np.ndarray, points: np.ndarray | None, n: int, stop: np.ndarray
+) -> Analysis:
     """The symbolic analysis of the Laplacian's interior block pattern for a disk of ``n`` vertices with these faces
-    and ``interior`` vertices, as :class:`~meshreg.mesh.harmonic.HarmonicMap` computes it."""
+    and ``interior`` vertices (at ``points`` (ni, 3), or None: see :meth:`EarlyAnalysis.claim`), as
+    :class:`~meshreg.mesh.harmonic.HarmonicMap` computes it."""
     ni = len(interior)
     place = np.full(n, ni, np.int64)  # every vertex of the boundary after the interior, as in the map
     place[interior] = np.arange(ni)
     with small_pages(n):  # a block of its own: the thread may outlive the cleanup's
-        return analyse(face_pattern(faces, place, ni), stop=stop, symmetric=True)
+        return analyse(face_pattern(faces, place, ni), stop=stop, symmetric=True, points=points)
 
 
 class EarlyAnalysis:
@@ -98,7 +101,7 @@ class EarlyAnalysis:
     def __init__(self, minimum: int | None = None):
         self.minimum = EARLY_MIN if minimum is None else minimum
         self.used = False  # whether a map kept the early analysis
-        self._given: tuple[np.ndarray, np.ndarray] | None = None  # the faces and interior vertices analysed
+        self._given: tuple | None = None  # the faces, interior vertices and their places analysed
         self._future: Future | None = None
         self._stop = np.zeros(1, np.bool_)
 
@@ -115,19 +118,22 @@ class EarlyAnalysis:
         if len(vertices) < self.minimum or self._future is not None:
             return
         faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self._given = faces, _interior(vertices, faces)
+        interior = _interior(vertices, faces)
+        self._given = faces, interior, vertices[interior] if ordered_in_space(len(interior)) else None
         pool = ThreadPoolExecutor(1, thread_name_prefix="meshreg-early")
         self._future = pool.submit(_interior_analysis, *self._given, len(vertices), self._stop)
         pool.shutdown(wait=False)
 
-    def claim(self, faces: np.ndarray, interior: np.ndarray) -> bool:
-        """Whether the analysis under way is for ``faces`` and ``interior`` (the cleaned disk's faces and the map's
-        interior vertices): then it is the analysis the map would compute, and :meth:`analysis` gives it; else the
-        early work is abandoned (:meth:`abandon`). Once only: later claims are False."""
+    def claim(self, faces: np.ndarray, interior: np.ndarray, points: np.ndarray | None) -> bool:
+        """Whether the analysis under way is for ``faces``, ``interior`` and ``points`` (the cleaned disk's faces,
+        the map's interior vertices and, for a mesh large enough to be ordered by them
+        (:func:`~meshreg.mesh.frontal.ordered_in_space`), their places (ni, 3), else None): then it is the analysis
+        the map would compute, and :meth:`analysis` gives it; else the early work is abandoned (:meth:`abandon`).
+        Once only: later claims are False."""
         if self._future is None or self.used:
             return False
-        given_faces, given_interior = self._given
-        self.used = np.array_equal(faces, given_faces) and np.array_equal(interior, given_interior)
+        given = self._given
+        self.used = all(np.array_equal(x, y) for x, y in zip((faces, interior, points), given, strict=True))
         if not self.used:
             self.abandon()
         return self.used

@@ -26,7 +26,8 @@ import numpy as np
 import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
-from .ordering import Abandoned, _postorder, symmetric_minimum_degree, symmetric_pattern
+from .dissection import DISSECT_LEAF, dissected_order
+from .ordering import Abandoned, _postorder, dense_unknowns, symmetric_minimum_degree, symmetric_pattern
 
 PANEL = 32  # columns per panel of a large front's factorization (its trailing update is one matrix product)
 UPDATE_ROWS = 256  # rows of a large front's update per matrix product (bounds the product's scratch)
@@ -594,8 +595,18 @@ class Analysis:
     schedule: tuple
 
 
+def ordered_in_space(n: int) -> bool:
+    """Whether :func:`analyse` orders a pattern of ``n`` unknowns by their places in space when it is given them
+    (:func:`~meshreg.mesh.dissection.dissected_order`, for more than DISSECT_LEAF unknowns)."""
+    return n > DISSECT_LEAF
+
+
 def analyse(
-    pattern: sp.spmatrix, threads: int = THREADS, stop: np.ndarray | None = None, symmetric: bool = False
+    pattern: sp.spmatrix,
+    threads: int = THREADS,
+    stop: np.ndarray | None = None,
+    symmetric: bool = False,
+    points: np.ndarray | None = None,
 ) -> Analysis:
     """The symbolic analysis of a multifrontal LU of any matrix whose entries lie within ``pattern`` (n, n) (the
     pattern of A + A^T is used): the order (:func:`~meshreg.mesh.ordering.minimum_degree`), the elimination tree,
@@ -604,7 +615,10 @@ def analyse(
     abandon the analysis (:class:`~meshreg.mesh.ordering.Abandoned`, raised at the ordering's next pivot or after
     the ordering). ``symmetric``: the pattern is symmetric, without diagonal or repeated entries (the edges of a
     mesh, :func:`~meshreg.mesh.harmonic.face_pattern`); its sorted CSC is then the pattern of A + A^T that
-    :func:`~meshreg.mesh.ordering.symmetric_pattern` would build, entry for entry (0.1-0.16 s at 1M triangles)."""
+    :func:`~meshreg.mesh.ordering.symmetric_pattern` would build, entry for entry (0.1-0.16 s at 1M triangles).
+    ``points`` (n, 3): the unknowns' places in space (a mesh's interior vertices); given, a pattern of more than
+    DISSECT_LEAF unknowns without hubs is ordered by :func:`~meshreg.mesh.dissection.dissected_order` (nested
+    dissection by planes: at 1M triangles less than half the time of the minimum degree order, and less fill)."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
     if pattern.shape != (n, n):
@@ -614,7 +628,10 @@ def analyse(
         ptr, rows = pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64)
     else:
         ptr, rows = symmetric_pattern(pattern)
-    order = symmetric_minimum_degree(pattern, ptr, rows, stop)
+    if points is None or not ordered_in_space(n) or dense_unknowns(ptr).any():
+        order = symmetric_minimum_degree(pattern, ptr, rows, stop)
+    else:
+        order = dissected_order(points, ptr, rows, stop, leaf=DISSECT_LEAF)
     parent = _etree(ptr, rows, order, _inverse(order))
     post = _postorder(parent, np.ones(n, np.int64), n)
     order, parent = order[post], _relabel(parent, post)

@@ -17,7 +17,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError
 from .boundary import sharp_corners
-from .frontal import Analysis, MultifrontalLU, analyse
+from .frontal import Analysis, MultifrontalLU, analyse, ordered_in_space
 from .graph import side_lengths, turn_counts
 from .locate import uv_triangle
 from .ordering import spatial_order
@@ -477,6 +477,16 @@ class HarmonicMap:
         """The interior block's pattern (:func:`interior_pattern`)."""
         return interior_pattern(self.disk, self.interior)
 
+    def _analysis(self) -> Analysis:
+        """The symbolic analysis of the interior block's LU (:func:`~meshreg.mesh.frontal.analyse`; large meshes
+        are ordered by their interior vertices' places: :mod:`meshreg.mesh.dissection`)."""
+        return analyse(self._pattern(), symmetric=True, points=self._points())
+
+    def _points(self) -> np.ndarray | None:
+        """The interior vertices' places (ni, 3) when the analysis orders the interior block by them (a large
+        mesh: :func:`~meshreg.mesh.frontal.ordered_in_space`), else None (no copy made)."""
+        return self.disk.vertices[self.interior] if ordered_in_space(len(self.interior)) else None
+
     @cached_property
     def _system(self):
         """The Laplacian's coupling of the interior to the boundary, and the LU of its interior block (None
@@ -492,9 +502,9 @@ class HarmonicMap:
         try:
             if not len(self.interior):
                 return self.assemble()[1], None
-            claimed = early is not None and early.claim(self.disk.faces, self.interior)
+            claimed = early is not None and early.claim(self.disk.faces, self.interior, self._points())
             with ThreadPoolExecutor(1) as pool:
-                job = None if claimed else pool.submit(lambda: analyse(self._pattern(), symmetric=True))
+                job = None if claimed else pool.submit(self._analysis)
                 block, coupling = self.assemble()
                 pattern = early.analysis() if claimed else job.result()
         finally:

@@ -160,7 +160,7 @@ def _unlink(i, degree, head, nxt, last):
 
 
 @numba.njit(cache=True, inline="always")
-def _new_element(k, cnz, graph, iw, lists):
+def _new_element(k, cnz, graph, iw, lists, held):
     """Turn pivot k into the element Lk: the variables of k's elements and of k's own list, each flagged by a
     negative nv, written at the end of the used workspace (or in place when k has no elements); k's elements are
     absorbed. Returns |Lk| (counting supervariable sizes), where Lk starts and ends in ``iw``, and the new end."""
@@ -186,7 +186,8 @@ def _new_element(k, cnz, graph, iw, lists):
             nv[i] = -nvi
             iw[pk2] = i
             pk2 += 1
-            _unlink(i, degree, head, nxt, last)
+            if not held[i]:
+                _unlink(i, degree, head, nxt, last)
         if e != k:
             pe[e], w[e] = _flip(k), 0
     if elenk != 0:
@@ -214,7 +215,7 @@ def _set_differences(pk1, pk2, mark, graph, iw):
 
 
 @numba.njit(cache=True, inline="always")
-def _update_degrees(k, pk1, pk2, mark, dk, nvk, nel, graph, iw, lists):
+def _update_degrees(k, pk1, pk2, mark, dk, nvk, nel, graph, iw, lists, held):
     """Bound the external degree of every variable of Lk, absorb the elements inside Lk, prune its list (k first)
     and hash it; a variable with no neighbour outside Lk is eliminated with k (mass elimination).
     Returns the updated |Lk|, the size of k and the count of eliminated variables."""
@@ -245,7 +246,7 @@ def _update_degrees(k, pk1, pk2, mark, dk, nvk, nel, graph, iw, lists):
                 iw[pn] = j
                 pn += 1
                 h += j
-        if d == 0:
+        if d == 0 and not held[i]:
             pe[i] = _flip(k)
             nvi = -nv[i]
             dk, nvk, nel = dk - nvi, nvk + nvi, nel + nvi
@@ -262,7 +263,7 @@ def _update_degrees(k, pk1, pk2, mark, dk, nvk, nel, graph, iw, lists):
 
 
 @numba.njit(cache=True, inline="always")
-def _merge_supervariables(pk1, pk2, mark, graph, iw, lists):
+def _merge_supervariables(pk1, pk2, mark, graph, iw, lists, held):
     """Merge the variables of Lk whose lists are equal (same hash bucket, same entries) into supervariables.
     Returns the next mark."""
     pe, length, nv, w, elen, _ = graph
@@ -280,7 +281,7 @@ def _merge_supervariables(pk1, pk2, mark, graph, iw, lists):
                 w[iw[p]] = mark
             jlast, j = i, nxt[i]
             while j != -1:
-                same = length[j] == ln and elen[j] == eln
+                same = length[j] == ln and elen[j] == eln and held[j] == held[i]
                 p = pe[j] + 1
                 while same and p < pe[j] + ln:
                     same = w[iw[p]] == mark
@@ -299,7 +300,7 @@ def _merge_supervariables(pk1, pk2, mark, graph, iw, lists):
 
 
 @numba.njit(cache=True, inline="always")
-def _finalize(k, pk1, pk2, dk, nvk, left, mindeg, graph, iw, lists):
+def _finalize(k, pk1, pk2, dk, nvk, left, mindeg, graph, iw, lists, held):
     """Put the variables of Lk back in the degree lists with their new degrees and compact Lk to them.
     Returns the new minimum degree and the end of Lk."""
     pe, length, nv, w, _, degree = graph
@@ -312,10 +313,11 @@ def _finalize(k, pk1, pk2, dk, nvk, left, mindeg, graph, iw, lists):
             continue
         nv[i] = nvi
         d = min(degree[i] + dk - nvi, left - nvi)
-        if head[d] != -1:
-            last[head[d]] = i
-        nxt[i], last[i], head[d] = head[d], -1, i
-        mindeg = min(mindeg, d)
+        if not held[i]:
+            if head[d] != -1:
+                last[head[d]] = i
+            nxt[i], last[i], head[d] = head[d], -1, i
+            mindeg = min(mindeg, d)
         degree[i] = d
         iw[p] = i
         p += 1
@@ -327,7 +329,7 @@ def _finalize(k, pk1, pk2, dk, nvk, left, mindeg, graph, iw, lists):
 
 
 @numba.njit(cache=True, nogil=True)
-def _amd(ptr, iw, cnz, stop):
+def _amd(ptr, iw, cnz, stop, held):
     """Approximate minimum degree on the quotient graph whose adjacency lists are iw[ptr[i]: ptr[i + 1]] (no
     diagonal); returns the parent of every node in the assembly tree (-1 at roots), nv (> 0 for the elements, the
     pivots) and True; or False when ``iw`` has too little room after the lists or another thread set ``stop[0]``
@@ -344,6 +346,8 @@ def _amd(ptr, iw, cnz, stop):
     mark, nel, mindeg, lemax = 2, 0, 0, 0
     for i in range(n):
         d = degree[i]
+        if held[i]:
+            continue
         if d == 0:  # no neighbours: eliminated at once
             elen[i], pe[i], w[i] = -2, -1, 0
             nel += 1
@@ -351,7 +355,8 @@ def _amd(ptr, iw, cnz, stop):
             if head[d] != -1:
                 last[head[d]] = i
             nxt[i], head[d] = head[d], i
-    while nel < n:
+    target = n - np.sum(held)
+    while nel < target:
         if stop[0]:
             return np.full(n, -1, np.int64), nv, False
         while head[mindeg] == -1:
@@ -364,18 +369,18 @@ def _amd(ptr, iw, cnz, stop):
             cnz = _collect_garbage(pe, iw, length, n, cnz)
             if cnz + mindeg >= len(iw):
                 return np.full(n, -1, np.int64), nv, False
-        dk, pk1, pk2, cnz = _new_element(k, cnz, graph, iw, lists)
+        dk, pk1, pk2, cnz = _new_element(k, cnz, graph, iw, lists, held)
         _set_differences(pk1, pk2, mark, graph, iw)
-        dk, nvk, nel = _update_degrees(k, pk1, pk2, mark, dk, nvk, nel, graph, iw, lists)
+        dk, nvk, nel = _update_degrees(k, pk1, pk2, mark, dk, nvk, nel, graph, iw, lists, held)
         degree[k] = dk
         lemax = max(lemax, dk)
-        mark = _merge_supervariables(pk1, pk2, mark + lemax + 1, graph, iw, lists)
-        mindeg, end = _finalize(k, pk1, pk2, dk, nvk, n - nel, mindeg, graph, iw, lists)
+        mark = _merge_supervariables(pk1, pk2, mark + lemax + 1, graph, iw, lists, held)
+        mindeg, end = _finalize(k, pk1, pk2, dk, nvk, n - nel, mindeg, graph, iw, lists, held)
         if elenk != 0:
             cnz = end
     parent = np.empty(n, np.int64)
     for i in range(n):
-        parent[i] = -1 if pe[i] == -1 else _flip(pe[i])
+        parent[i] = _flip(pe[i]) if pe[i] < -1 else -1
     return parent, nv, True
 
 
@@ -411,6 +416,13 @@ def minimum_degree(a: sp.spmatrix) -> np.ndarray:
     return symmetric_minimum_degree(a, *symmetric_pattern(a))
 
 
+def dense_unknowns(ptr: np.ndarray) -> np.ndarray:
+    """Whether each unknown (n,) of a pattern (column pointers ``ptr`` (n + 1,), no diagonal) is coupled to more
+    than max(DENSE_MIN, DENSE_FACTOR sqrt(n)) others: a hub, which :func:`minimum_degree` orders last."""
+    n = len(ptr) - 1
+    return np.diff(ptr) > max(DENSE_MIN, DENSE_FACTOR * np.sqrt(n))
+
+
 def symmetric_pattern(a: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
     """The pattern of A + A^T without its diagonal for a square CSC (or CSR) matrix: column pointers (n + 1,) and
     row indices (longer than their used part), each column's rows in the order that :func:`minimum_degree` breaks
@@ -443,7 +455,7 @@ def symmetric_minimum_degree(
     if n == 0:
         return np.zeros(0, np.int64)
     degree = np.diff(pe)
-    dense = degree > max(DENSE_MIN, DENSE_FACTOR * np.sqrt(n))
+    dense = dense_unknowns(pe)
     if dense.any():
         kept = np.flatnonzero(~dense)
         hubs = np.flatnonzero(dense)
@@ -458,7 +470,7 @@ def symmetric_minimum_degree(
     iw = np.empty(room, kind)
     iw[:cnz] = rows[:cnz]
     stop = np.zeros(1, np.bool_) if stop is None else stop
-    parent, nv, done = _amd(pe.astype(kind), iw, cnz, stop)
+    parent, nv, done = _amd(pe.astype(kind), iw, cnz, stop, np.zeros(n, np.bool_))
     if stop[0]:
         raise Abandoned("minimum_degree: abandoned by another thread")
     if not done:
@@ -467,3 +479,28 @@ def symmetric_minimum_degree(
     if len(order) != n:
         raise AssertionError("minimum_degree: the assembly tree does not reach every unknown")
     return order
+
+
+def constrained_minimum_degree(ptr: np.ndarray, rows: np.ndarray, held: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """Approximate minimum degree order of the unknowns not ``held`` (k,), for a symmetric pattern whose ``held``
+    unknowns are eliminated after all others (a part between separators: :mod:`meshreg.mesh.dissection`).
+
+    Parameters
+    ----------
+    ptr, rows : ndarray (n + 1,), ndarray of int32
+        The pattern without its diagonal, symmetric (held unknowns included: their couplings count in the others'
+        degrees).
+    held : ndarray (n,) of bool
+        The unknowns held for last: never pivots, never merged with the others.
+    stop : ndarray (1,) of bool
+        Set by another thread to abandon the order (the unknowns then come back in no useful order).
+    """
+    n = len(ptr) - 1
+    cnz = int(ptr[n])
+    iw = np.empty(cnz + cnz // 5 + 2 * n, np.int32)
+    iw[:cnz] = rows[:cnz]
+    parent, nv, done = _amd(ptr, iw, cnz, stop, held)
+    if not done and not stop[0]:
+        raise AssertionError("constrained_minimum_degree: the quotient graph outgrew its workspace")
+    order = _postorder(parent, nv, n)
+    return order[~held[order]]
