@@ -832,6 +832,20 @@ def test_run_error_is_exit_status_1(capsys, monkeypatch):
     _one_line(err, 1, code, "a run that could not finish")
 
 
+def test_a_singular_laplacian_is_named_with_what_to_try(monkeypatch):
+    """SuperLU's "exactly singular" (weights that vanish or cancel: slivers beside large triangles, cotangent weights
+    of obtuse triangles) becomes an InputError that names the mesh and the other weights."""
+    from meshreg.mesh import harmonic
+
+    def singular(*args, **kwargs):
+        raise RuntimeError("Factor is exactly singular")
+
+    monkeypatch.setattr(harmonic, "Factorization", singular)
+    v, f, _ = random_disk_mesh(bump(), 300, seed=1)
+    with pytest.raises(InputError, match="first mesh: its Laplacian .* is singular.*--weights cotangent"):
+        register_meshes((v, f), (v, f), Options(resolution=21))
+
+
 def test_mesh_inputs_that_crashed_deep_inside_get_clear_answers():
     """Found by a fuzz of the command line (2026-12-03): each raised a traceback from numpy, SuperLU or numba."""
     square = (np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]), np.array([[0, 1, 3], [0, 3, 2]]))
@@ -841,11 +855,13 @@ def test_mesh_inputs_that_crashed_deep_inside_get_clear_answers():
     assert np.isfinite(register_meshes(folded, (v, f), Options(resolution=21)).result.energy)
     x, y = np.meshgrid(np.linspace(-1, 1, 20), np.linspace(-1, 1, 20), indexing="ij")
     spike = np.c_[x.ravel(), y.ravel(), 0.2 * np.sin(3 * x.ravel()) * np.cos(2 * y.ravel())]
-    spike[210, 2] = 1e8  # a scanner outlier inside: mean-value weights underflow, the Laplacian is singular
+    spike[210, 2] = 1e8  # a scanner outlier inside: its mean-value weights are tiny (1e-17), but not zero
     cells = np.arange(19 * 20).reshape(19, 20)[:, :19].ravel()
     grid = np.vstack([np.c_[cells, cells + 20, cells + 1], np.c_[cells + 1, cells + 20, cells + 21]])
-    with pytest.raises(InputError, match="first mesh: its Laplacian .* is singular.*--weights cotangent"):
-        register_meshes((spike, grid), (v, f), Options(resolution=21))
+    # the map puts the outlier among its neighbours (the half-angle tangents from cross products: with arccos they
+    # underflowed to 0 and the Laplacian was singular); the answer says that the pair does not fit
+    result = register_meshes((spike, grid), (v, f), Options(resolution=21)).result
+    assert np.isfinite(result.energy) and result.residual > 1
     with pytest.raises(InputError, match="lie 1.0e\\+15 from the origin"):
         register_meshes((v + 1e15, f), (v, f), Options(resolution=21))
     with pytest.raises(InputError, match="not one str"):

@@ -138,7 +138,9 @@ def _boundary_uv(disk: DiskMesh, corner_pos: np.ndarray) -> np.ndarray:
 def _corner_weights(v, f, t, k, cotangent):
     """The two weights of corner k of face t: mean-value tan(angle at i / 2) / |e_ij| and / |e_il| on the edges
     (i, j) and (i, l), or half the cotangent of the angle at i on the opposite edge (j, l), both ways. Returns
-    (row, column, value) of each: i, j, l being the corner and the next two of the face."""
+    (row, column, value) of each: i, j, l being the corner and the next two of the face. The half-angle tangent is
+    |e_ij x e_il| / (|e_ij| |e_il| + e_ij . e_il): no arccos and tan (the 1M-triangle mesh's weights in 0.13-0.2 s
+    against 0.28 s), and accurate for thin corners, where arccos of a cosine rounded to 1 gave 0."""
     i, j, l = f[t, k], f[t, (k + 1) % 3], f[t, (k + 2) % 3]
     x1, y1, z1 = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
     x2, y2, z2 = v[l, 0] - v[i, 0], v[l, 1] - v[i, 1], v[l, 2] - v[i, 2]
@@ -148,7 +150,8 @@ def _corner_weights(v, f, t, k, cotangent):
         half = 0.5 * dot / max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
         return j, l, half, l, j, half
     nij, nil = np.sqrt(x1 * x1 + y1 * y1 + z1 * z1), np.sqrt(x2 * x2 + y2 * y2 + z2 * z2)
-    tan = np.tan(np.arccos(min(max(dot / (nij * nil), -1.0), 1.0)) / 2)
+    cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+    tan = np.sqrt(cx * cx + cy * cy + cz * cz) / max(nij * nil + dot, 1e-300)  # |a x b| / (|a| |b| + a . b)
     return i, j, tan / nij, i, l, tan / nil
 
 
@@ -517,9 +520,9 @@ class HarmonicMap:
         except RuntimeError as err:  # SuperLU: "Factor is exactly singular"
             other = "cotangent" if self.weights == "mean-value" else "mean-value"
             raise InputError(
-                f"{self.name}: its Laplacian ({self.weights} weights) is singular ({err}): the weights vanish at "
-                "some vertices, as next to a vertex far out of place (a scanner outlier) or to triangles of almost "
-                f"no area beside large ones; remove the outliers, or try the other weights (--weights {other}, "
+                f"{self.name}: its Laplacian ({self.weights} weights) is singular ({err}): the weights vanish or "
+                "cancel at some vertices, as next to triangles of almost no area beside large ones (or obtuse ones, "
+                f"with cotangent weights); remove the slivers, or try the other weights (--weights {other}, "
                 f"Options(weights='{other}'))"
             ) from None
 
