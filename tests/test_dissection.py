@@ -12,8 +12,8 @@ from meshreg.mesh import frontal
 from meshreg.mesh.dissection import _cover, _dissect, dissected_order
 from meshreg.mesh.early import EarlyAnalysis
 from meshreg.mesh.frontal import MultifrontalLU, analyse
-from meshreg.mesh.harmonic import HarmonicMap, choose_corners
-from meshreg.mesh.ordering import constrained_minimum_degree, minimum_degree, symmetric_pattern
+from meshreg.mesh.harmonic import HarmonicMap, _corner_weights, choose_corners
+from meshreg.mesh.ordering import _amd, _postorder, constrained_minimum_degree, minimum_degree, symmetric_pattern
 from meshreg.mesh.samples import random_disk_mesh, terrain_function
 from meshreg.mesh.topology import prepare_disk
 
@@ -154,3 +154,37 @@ def test_a_stopped_dissection_raises_abandoned(monkeypatch):
     monkeypatch.setattr(frontal, "DISSECT_LEAF", 500)
     with pytest.raises(Abandoned):
         analyse(a, stop=np.ones(1, np.bool_), points=points)
+
+
+@pytest.mark.parametrize("where", [0, 1700, 3000])
+def test_a_held_unknown_without_neighbours_does_not_upset_the_workspace(where):
+    """An isolated held unknown has an empty list: it must not pass for a live list when the workspace is compacted
+    (its pointer took over the next list's first entry). The order must not depend on the workspace's room."""
+    v, f, _ = random_disk_mesh(terrain_function(), 3000, seed=1)
+    edges = sp.csc_matrix((np.ones(3 * len(f)), (f.ravel(), np.roll(f, 1, axis=1).ravel())), shape=(len(v),) * 2)
+    ids = np.delete(np.arange(len(v) + 1), where)  # unknown ``where`` has no couplings
+    coo = edges.tocoo()
+    n = len(v) + 1
+    ptr, rows = symmetric_pattern(sp.csc_matrix((coo.data, (ids[coo.row], ids[coo.col])), shape=(n, n)))
+    held = np.zeros(n, np.bool_)
+    held[where] = True
+    stop = np.zeros(1, np.bool_)
+    order = constrained_minimum_degree(ptr.astype(np.int32), rows.astype(np.int32), held, stop)
+    roomy = np.empty(20 * int(ptr[n]), np.int32)
+    roomy[: ptr[n]] = rows[: ptr[n]]
+    parent, nv, done = _amd(ptr.astype(np.int32), roomy, int(ptr[n]), stop, held)
+    expected = _postorder(parent, nv, n)
+    assert done and np.array_equal(order, expected[~held[expected]])
+    assert np.array_equal(np.sort(order), np.flatnonzero(~held))
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1.0, 1e20])
+@pytest.mark.parametrize("height", [1e-10, 1e-6, 0.3, 1.0, 10.0, 1e6, 1e9])
+def test_mean_value_weights_hold_at_corners_near_0_and_180_degrees(height, scale):
+    """The corner at (0, h, 0) of the triangle with (-1, 0, 0) and (1, 0, 0) (times ``scale``) has tan(angle / 2)
+    = 1 / h exactly: its weight is 1 / (h |e|), from nearly 180 degrees (h = 1e-10; tan(arccos) gave 1.6e16) to
+    nearly 0."""
+    vertices = np.array([[0.0, height, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]) * scale
+    _, _, weight, _, _, other = _corner_weights(vertices, np.array([[0, 1, 2]]), 0, 0, False)
+    expected = 1.0 / (height * scale * np.sqrt(1.0 + height**2))
+    assert weight == pytest.approx(expected, rel=1e-12) and other == pytest.approx(expected, rel=1e-12)

@@ -238,7 +238,8 @@ def dissected_order(
     stop : ndarray (1,) of bool, optional
         Set by another thread to abandon the order (:class:`~meshreg.mesh.ordering.Abandoned`).
     leaf : int
-        Parts of more unknowns are cut in two (DISSECT_LEAF); with n <= ``leaf`` this is the minimum degree order.
+        Parts of more unknowns are cut in two (DISSECT_LEAF); with n <= ``leaf`` this is the minimum degree order
+        (:func:`~meshreg.mesh.ordering.minimum_degree`) of a pattern without hubs, which that function orders last.
     factor : float
         A cut whose separator would hold more than ``factor`` sqrt(m) of a part's m unknowns is not made
         (SEPARATOR_FACTOR).

@@ -618,7 +618,7 @@ def analyse(
     :func:`~meshreg.mesh.ordering.symmetric_pattern` would build, entry for entry (0.1-0.16 s at 1M triangles).
     ``points`` (n, 3): the unknowns' places in space (a mesh's interior vertices); given, a pattern of more than
     DISSECT_LEAF unknowns without hubs is ordered by :func:`~meshreg.mesh.dissection.dissected_order` (nested
-    dissection by planes: at 1M triangles less than half the time of the minimum degree order, and less fill)."""
+    dissection by planes: at 1M triangles about half the time of the minimum degree order, and a little less fill)."""
     pattern = sp.csc_matrix(pattern)
     n = pattern.shape[0]
     if pattern.shape != (n, n):

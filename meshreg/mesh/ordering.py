@@ -333,7 +333,9 @@ def _amd(ptr, iw, cnz, stop, held):
     """Approximate minimum degree on the quotient graph whose adjacency lists are iw[ptr[i]: ptr[i + 1]] (no
     diagonal); returns the parent of every node in the assembly tree (-1 at roots), nv (> 0 for the elements, the
     pivots) and True; or False when ``iw`` has too little room after the lists or another thread set ``stop[0]``
-    (checked at every pivot). Names follow the published
+    (checked at every pivot). The ``held`` (n,) unknowns are eliminated after all others: they are never pivots,
+    never merged with unknowns not held nor eliminated with a pivot, and the order stops when only they are left
+    (they come back as roots, -1; all False: the plain order). Names follow the published
     algorithm: elen (elements in a list), nv (supervariable size, negated while in the new element Lk), w
     (set-difference counters against ``mark``, 64-bit: the marks grow past 32 bits on large graphs). The lists are of
     ``iw``'s integer type (32-bit halves the memory traffic)."""
@@ -346,7 +348,9 @@ def _amd(ptr, iw, cnz, stop, held):
     mark, nel, mindeg, lemax = 2, 0, 0, 0
     for i in range(n):
         d = degree[i]
-        if held[i]:
+        if held[i]:  # in no degree list; with no neighbours no list either (pe -1: a root, never compacted)
+            if d == 0:
+                pe[i] = -1
             continue
         if d == 0:  # no neighbours: eliminated at once
             elen[i], pe[i], w[i] = -2, -1, 0
