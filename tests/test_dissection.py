@@ -12,7 +12,7 @@ from meshreg.mesh import frontal
 from meshreg.mesh.dissection import _cover, _dissect, dissected_order
 from meshreg.mesh.early import EarlyAnalysis
 from meshreg.mesh.frontal import MultifrontalLU, analyse
-from meshreg.mesh.harmonic import HarmonicMap, _corner_weights, choose_corners
+from meshreg.mesh.harmonic import HarmonicMap, _corner_weights
 from meshreg.mesh.ordering import _amd, _postorder, constrained_minimum_degree, minimum_degree, symmetric_pattern
 from meshreg.mesh.samples import random_disk_mesh, terrain_function
 from meshreg.mesh.topology import prepare_disk
@@ -114,23 +114,6 @@ def test_the_cover_touches_every_edge_and_is_a_smallest(left, right, edges):
     graph = sp.csr_matrix((np.ones(len(u)), (u, v)), shape=(left, right))
     matched = int((maximum_bipartite_matching(graph, perm_type="column") >= 0).sum())
     assert on_left.sum() + on_right.sum() == matched  # Koenig: a smallest cover is as large as a largest matching
-
-
-def _mapped(vertices, faces, early=None):
-    disk = prepare_disk(vertices, faces, checked=None if early is None else early.begin)
-    return HarmonicMap(disk, early=early)(choose_corners(disk))[0]
-
-
-def test_a_large_mesh_is_mapped_alike_in_either_order(monkeypatch):
-    """The harmonic map of a mesh whose interior is dissected (DISSECT_LEAF lowered so that a 6000-vertex mesh is
-    cut) equals the map in the minimum degree order to rounding, analysed early or not."""
-    v, f, _ = random_disk_mesh(terrain_function(), 6000, seed=4)
-    plain = _mapped(v, f)
-    monkeypatch.setattr(frontal, "DISSECT_LEAF", 700)
-    early = EarlyAnalysis(minimum=0)
-    for uv in (_mapped(v, f), _mapped(v, f, early)):
-        assert np.abs(uv - plain).max() < 1e-10
-    assert early.used
 
 
 def test_an_early_analysis_of_other_places_is_not_claimed(monkeypatch):

@@ -241,6 +241,22 @@ def test_an_analysis_begun_before_the_cleanup_gives_the_same_map_or_is_abandoned
     assert not small.used
 
 
+def test_a_large_mesh_is_mapped_alike_in_either_order(monkeypatch):
+    """The harmonic map of a mesh whose interior is dissected (DISSECT_LEAF lowered so that a 6000-vertex mesh is
+    cut) equals the map in the minimum degree order to rounding, analysed early or not."""
+    from meshreg.mesh import frontal
+    from meshreg.mesh.early import EarlyAnalysis
+    from meshreg.mesh.samples import terrain_function
+
+    v, f, _ = random_disk_mesh(terrain_function(), 6000, seed=4)
+    plain = _map_with((v, f), None)
+    monkeypatch.setattr(frontal, "DISSECT_LEAF", 700)
+    early = EarlyAnalysis(minimum=0)
+    for uv in (_map_with((v, f), None), _map_with((v, f), early)):
+        assert np.abs(uv - plain).max() < 1e-10
+    assert early.used
+
+
 def test_a_stopped_analysis_raises_abandoned():
     from meshreg.mesh.frontal import analyse
     from meshreg.mesh.ordering import Abandoned

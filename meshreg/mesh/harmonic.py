@@ -486,10 +486,10 @@ class HarmonicMap:
         """The interior block's pattern (:func:`interior_pattern`)."""
         return interior_pattern(self.disk, self.interior)
 
-    def _analysis(self) -> Analysis:
+    def _analysis(self, points: np.ndarray | None) -> Analysis:
         """The symbolic analysis of the interior block's LU (:func:`~meshreg.mesh.frontal.analyse`; large meshes
-        are ordered by their interior vertices' places: :mod:`meshreg.mesh.dissection`)."""
-        return analyse(self._pattern(), symmetric=True, points=self._points())
+        are ordered by their interior vertices' ``points``, :meth:`_points`: :mod:`meshreg.mesh.dissection`)."""
+        return analyse(self._pattern(), symmetric=True, points=points)
 
     def _points(self) -> np.ndarray | None:
         """The interior vertices' places (ni, 3) when the analysis orders the interior block by them (a large
@@ -511,9 +511,10 @@ class HarmonicMap:
         try:
             if not len(self.interior):
                 return self.assemble()[1], None
-            claimed = early is not None and early.claim(self.disk.faces, self.interior, self._points())
+            points = self._points()
+            claimed = early is not None and early.claim(self.disk.faces, self.interior, points)
             with ThreadPoolExecutor(1) as pool:
-                job = None if claimed else pool.submit(self._analysis)
+                job = None if claimed else pool.submit(self._analysis, points)
                 block, coupling = self.assemble()
                 pattern = early.analysis() if claimed else job.result()
         finally:

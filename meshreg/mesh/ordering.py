@@ -466,20 +466,10 @@ def symmetric_minimum_degree(
         sub = sp.csc_matrix(a[kept][:, kept])
         order = symmetric_minimum_degree(sub, *symmetric_pattern(sub), stop)
         return np.concatenate([kept[order], hubs[np.argsort(degree[hubs], kind="stable")]])
-    cnz = int(pe[n])
-    # room after the pattern: the quotient graph never needs more than the pattern and n more entries (each new
-    # element's list is at most as long as the lists it absorbs, plus garbage collection); cs_amd's 1.2 cnz + 2n
-    room = cnz + cnz // 5 + 2 * n
-    kind = np.int32 if room < np.iinfo(np.int32).max else np.int64  # the same order, less memory traffic
-    iw = np.empty(room, kind)
-    iw[:cnz] = rows[:cnz]
     stop = np.zeros(1, np.bool_) if stop is None else stop
-    parent, nv, done = _amd(pe.astype(kind), iw, cnz, stop, np.zeros(n, np.bool_))
+    order = constrained_minimum_degree(pe, rows, np.zeros(n, np.bool_), stop)
     if stop[0]:
         raise Abandoned("minimum_degree: abandoned by another thread")
-    if not done:
-        raise AssertionError("minimum_degree: the quotient graph outgrew its workspace")
-    order = _postorder(parent, nv, n)
     if len(order) != n:
         raise AssertionError("minimum_degree: the assembly tree does not reach every unknown")
     return order
@@ -491,19 +481,23 @@ def constrained_minimum_degree(ptr: np.ndarray, rows: np.ndarray, held: np.ndarr
 
     Parameters
     ----------
-    ptr, rows : ndarray (n + 1,), ndarray of int32
+    ptr, rows : ndarray (n + 1,), ndarray
         The pattern without its diagonal, symmetric (held unknowns included: their couplings count in the others'
         degrees).
     held : ndarray (n,) of bool
-        The unknowns held for last: never pivots, never merged with the others.
+        The unknowns held for last: never pivots, never merged with the others (none: :func:`minimum_degree`).
     stop : ndarray (1,) of bool
         Set by another thread to abandon the order (the unknowns then come back in no useful order).
     """
     n = len(ptr) - 1
     cnz = int(ptr[n])
-    iw = np.empty(cnz + cnz // 5 + 2 * n, np.int32)
+    # room after the pattern: the quotient graph never needs more than the pattern and n more entries (each new
+    # element's list is at most as long as the lists it absorbs, plus garbage collection); cs_amd's 1.2 cnz + 2n
+    room = cnz + cnz // 5 + 2 * n
+    kind = np.int32 if room < np.iinfo(np.int32).max else np.int64  # the same order, less memory traffic
+    iw = np.empty(room, kind)
     iw[:cnz] = rows[:cnz]
-    parent, nv, done = _amd(ptr, iw, cnz, stop, held)
+    parent, nv, done = _amd(ptr.astype(kind, copy=False), iw, cnz, stop, held)
     if not done and not stop[0]:
         raise AssertionError("constrained_minimum_degree: the quotient graph outgrew its workspace")
     order = _postorder(parent, nv, n)
