@@ -27,6 +27,7 @@ No DP stage: the DP minimizes E and walks away from the parametrization on bends
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache, partial
 
@@ -157,6 +158,7 @@ def register_bending(
     symmetry: int | None = None,
     finest: float = 0.0,
     blurred: list[GridSurface] | None = None,
+    settle: Callable[[Registration, bool], Registration | None] | None = None,
 ) -> Registration:
     """Register two grid surfaces (two meshes on their squares) from their parametrizations' own correspondence,
     descending E_w (see the module's docstring).
@@ -178,6 +180,13 @@ def register_bending(
     blurred : [GridSurface, GridSurface], optional
         Both surfaces blurred (meshes: ``Options.mesh_blur``), registered instead when the pair is one unbent surface
         (:func:`_unbent`); ``params["blurred"]`` says whether they were.
+    settle : callable, optional
+        ``settle(registration, blurred)``: a final answer from the parametrizations' own correspondence, or None.
+        Tried before any descent when one symmetry ranks close and its start fits the points within
+        RIGID_FIT_RESIDUAL (one unbent surface) and is not mirrored, with the registration at that start (h = the
+        symmetry; ``blurred``: whether it is on the blurred grids); an answer it returns is returned as it is
+        (meshes: the snap to closest points, :func:`meshreg.mesh.snap.snap_rigid`, whose answer for one rigid
+        surface does not depend on the descent), None descends as usual. ``params["descended"]`` says which.
 
     Returns
     -------
@@ -201,17 +210,27 @@ def register_bending(
     def descend(k: int) -> BentRun:
         return _descend(first, start_fit(k), area, k, window, options, finest, Log(callback, timings))
 
+    def finished(chosen: BentRun, runs: list[BentRun], descended: bool = True) -> Registration:
+        alternatives = []
+        if symmetry is None:
+            with Log(callback, timings).clock("alternatives"):
+                alternatives = find_alternatives(
+                    first, second, area, chosen.symmetry, chosen, chosen.residual, options, Log(callback), TWIN_MARGIN
+                )
+        timings["total"] = time.perf_counter() - start
+        params = _params(options, chosen, runs, ranked, window, first, second)
+        params.update(blurred=use_blurred, descended=descended)
+        return _registration(chosen, first, second, options, params, timings, alternatives)
+
+    if settle is not None and len(close) == 1:
+        fit = start_fit(close[0])
+        if not _bent(fit[2]):
+            run = _at_start(first, fit, area, close[0], window, Log(callback, timings))
+            settled = None if run.residual.mirrored else settle(finished(run, [run], False), use_blurred)
+            if settled is not None:
+                return settled
     chosen, runs = _unmirrored(close, spare, descend)
-    k = chosen.symmetry
-    alternatives = []
-    if symmetry is None:
-        with Log(callback, timings).clock("alternatives"):
-            alternatives = find_alternatives(
-                first, second, area, k, chosen, chosen.residual, options, Log(callback), TWIN_MARGIN
-            )
-    timings["total"] = time.perf_counter() - start
-    params = {**_params(options, chosen, runs, ranked, window, first, second), "blurred": use_blurred}
-    return _registration(chosen, first, second, options, params, timings, alternatives)
+    return finished(chosen, runs)
 
 
 def choice_symmetries(options: Options, symmetry: int | None) -> tuple[int, ...]:
@@ -350,6 +369,19 @@ def _unbent(start_fit, symmetries: list[int]) -> bool:
     slightly bent, whose two maps to the square nearly agree, so that a blur on either square is nearly one blur on
     the surface."""
     return any(start_fit(k)[2] <= BLUR_FIT_RESIDUAL for k in symmetries)
+
+
+def _at_start(first: GridSurface, start, area: float, k: int, window: float, log: Log) -> BentRun:
+    """The parametrizations' own correspondence under the k-th symmetry (``start``: its :func:`_start_fit`) as a run
+    that did not descend: h = the symmetry, at its best rotation, with E_w there (the rotations-only E_w of an unbent
+    pair, :func:`_descend`) as its one logged energy."""
+    copy, plain, fit = start
+    rotation, energy, residual = plain.judge(plain.identity)
+    local = LocalObjective(first, copy, area, window=window, scaled=_bent(fit))
+    bend_energy = float(local.energy(rotation, plain.identity))
+    log.keep("start", bend_energy)
+    metric = metric_residual(plain.first.points, plain.points(plain.identity))
+    return BentRun(k, plain, rotation, plain.identity, float(energy), bend_energy, residual, log, fit, metric)
 
 
 def _descend(first, start, area, k, window, options, finest, log) -> BentRun:

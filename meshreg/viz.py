@@ -99,7 +99,8 @@ def plot_registration(
             curve.annotate(level, (k, energies.max()), rotation=90, va="top", ha="right", fontsize=8, color="tab:blue")
     curve.set_xlabel("accepted step")
     curve.set_ylabel(f"log10 {minimized}")
-    curve.set_title(f"energy: {values[0]:.3g} -> {values[-1]:.3g}", fontsize=10)
+    descent = f"{values[0]:.3g} -> {values[-1]:.3g}" if len(values) > 1 else f"{values[0]:.3g}, no descent"
+    curve.set_title(f"energy: {descent}", fontsize=10)
     curve.grid(True, alpha=0.3)
     for k, line in enumerate(notes):
         fig.text(0.01, 0.01 + 0.035 * k, line, fontsize=9, color="tab:red", wrap=True)

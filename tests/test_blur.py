@@ -130,3 +130,28 @@ def test_a_slightly_rolled_pair_is_not_snapped_as_noise():
     mr = register_meshes(pair.first, pair.second, Options())
     assert not mr.result.params["snapped"]
     assert np.median(pair.errors(deform.matched_points(mr, len(pair.second[0])))) < 0.0015
+
+
+def test_one_rigid_surface_snaps_without_a_descent_to_the_descents_answer(monkeypatch):
+    """An unbent pair whose parametrizations' own correspondence snaps (one rigid surface) is not descended: the
+    snap from the descent's answer gave the same closest points (ICP from either pose converges to one pose)."""
+    import meshreg.mesh.correspond as correspond
+
+    pair = deform.sheet_pair("remeshed", n_first=800, n_second=1100, seed=1)
+    settled = register_meshes(pair.first, pair.second, Options()).result
+    assert settled.params["snapped"] and not settled.params["descended"]
+    assert settled.energy_stages == ("start",) and len(settled.energy_history) == 1
+    monkeypatch.setattr(correspond, "SETTLE_SLACK", 0.0)  # the settle's snap refused: the descent runs, then the snap
+    descended = register_meshes(pair.first, pair.second, Options()).result
+    assert descended.params["snapped"] and descended.params["descended"]
+    assert "gd" in descended.energy_stages
+    scale = np.sqrt(descended.second.area())
+    assert np.nanmax(np.linalg.norm(settled.correspondence() - descended.correspondence(), axis=1)) < 1e-6 * scale
+    assert np.allclose(settled.transform, descended.transform, atol=1e-6)
+    assert settled.symmetry == descended.symmetry
+
+
+def test_a_bent_pair_is_descended():
+    pair = deform.bent_pair("roll", 90.0, n_first=300, n_second=400, seed=0)
+    result = register_meshes(pair.first, pair.second, Options(overlap="off")).result
+    assert result.params["descended"] and not result.params["snapped"]
