@@ -10,16 +10,15 @@ backend switch, so importing this module changes nothing in a notebook.
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
+import matplotlib
 import numba
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.gridspec import GridSpec
-from matplotlib.transforms import offset_copy
-from PIL import Image
+from PIL import Image, ImageDraw, ImageFont
 
 from .mesh.graph import face_normals
 
@@ -115,7 +114,7 @@ def warm_up() -> None:
     does not pay for matplotlib's lazy set-up (fonts, the PNG writer) and for loading the renderer's numba kernel:
     about 0.5 s of a 100k-triangle ``meshes.png`` drawn first. A figure worker (:mod:`meshreg.painter`) runs it
     while the caller registers."""
-    from matplotlib import cm
+    from matplotlib.colors import Normalize
 
     points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     fig = Figure(figsize=(2, 1), dpi=20)
@@ -126,7 +125,7 @@ def warm_up() -> None:
     image = fig.add_subplot(1, 2, 2).imshow(np.eye(2), origin="lower", extent=(0, 1, 0, 1), cmap="magma")
     fig.colorbar(image, ax=image.axes, label="warm")
     _paint(_mesh_picture(points, np.array([[0, 1, 2]]), 8, 8)[0], np.full((1, 3), 0.5))
-    fig.colorbar(cm.ScalarMappable(cmap="viridis"), cax=fig.add_axes((0.9, 0.1, 0.05, 0.8))).set_label("warm")
+    _mesh_figure_text(["warm"], "warm", Normalize(0.0, 1.0))  # its fonts (PIL) and colour bar
     fig.suptitle("warm")
     fig.text(0.0, 0.0, "warm", fontsize=9)
     fig.savefig(os.devnull, format="png", pil_kwargs={"compress_level": PNG_COMPRESSION})
@@ -260,34 +259,89 @@ def plot_meshes(
 
 
 def _mesh_figure_text(names: list[str], title: str, norm) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
-    """The text of ``meshes.png`` drawn by matplotlib (panel names, title and, with the distance's ``norm``, its
-    colour bar) as 8-bit RGB pixels (h, w, 3), and where each panel's picture goes: (rows, columns), every panel as
-    wide (one picture can serve two)."""
+    """The text of ``meshes.png`` (panel names, title and, with the distance's ``norm``, its colour bar) as 8-bit RGB
+    pixels (h, w, 3), and where each panel's picture goes: (rows, columns), every panel as wide (one picture can
+    serve two). Laid out as matplotlib lays out a figure of one row of ``len(names)`` axes (5.5 x 5.2 inches each,
+    MESH_DPI) and drawn with PIL in matplotlib's font: a matplotlib figure of it took 0.12 s, most of it making the
+    colour bar's ticks."""
     count = len(names)
-    fig = Figure(figsize=(5.5 * count, 5.2), dpi=MESH_DPI)
+    width, height = round(5.5 * count * MESH_DPI), round(5.2 * MESH_DPI)
     right = 0.99 - 0.06 * (norm is not None)  # room for the colour bar
-    bottom, top = 0.02, 0.88
-    _, _, lefts, rights = GridSpec(
-        1, count, left=0.01, right=right, bottom=bottom, top=top, wspace=0.04
-    ).get_grid_positions(fig)
-    width, height = int(fig.bbox.width), int(fig.bbox.height)
-    above = offset_copy(fig.transFigure, fig=fig, y=6, units="points")  # where matplotlib puts an axes title
+    bottom, top, left, gap = 0.02, 0.88, 0.01, 0.04  # as GridSpec(left, right, bottom, top, wspace=gap)
+    cell = (right - left) / (count + gap * (count - 1))
+    lefts = left + np.arange(count) * cell * (1 + gap)
+    image = Image.new("RGB", (width, height), "white")
+    draw = ImageDraw.Draw(image)
+    across = int((lefts[0] + cell) * width) - int(round(lefts[0] * width))
     places = []
-    across = int(rights[0] * width) - int(round(lefts[0] * width))
     for k, name in enumerate(names):
         x0, y0 = int(round(lefts[k] * width)), int(round((1 - top) * height))
         places.append((slice(y0, int((1 - bottom) * height)), slice(x0, x0 + across)))
-        fig.text(0.5 * (lefts[k] + rights[k]), top, name, transform=above, ha="center", va="baseline", fontsize=10)
+        baseline = (1 - top) * height - _pixels(6)  # 6 points above the panel, where matplotlib puts an axes title
+        draw.text(((lefts[k] + cell / 2) * width, baseline), name, fill="black", font=_font(10), anchor="ms")
+    draw.text((width / 2, 0.02 * height), title or MESH_TITLE, fill="black", font=_font(12), anchor="mt")
     if norm is not None:
-        from matplotlib import cm
+        x, y, w, h = right + 0.005, bottom + 0.2 * (top - bottom), 0.008, 0.6 * (top - bottom)  # figure fractions
+        box = [round(x * width), round((1 - y - h) * height), round((x + w) * width), round((1 - y) * height)]
+        _colour_bar(image, draw, norm, box)
+    return np.asarray(image).copy(), places
 
-        bar = fig.add_axes((right + 0.005, bottom + 0.2 * (top - bottom), 0.008, 0.6 * (top - bottom)))
-        fig.colorbar(cm.ScalarMappable(norm=norm, cmap="viridis"), cax=bar).set_label("fraction of sqrt(area)")
-    fig.suptitle(title or "corresponding points share a colour and a checkerboard square")
-    # the text drawn by matplotlib, the panels' pixels put in place after (nothing resampled, no axes to lay out)
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    return np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3]), places
+
+MESH_TITLE = "corresponding points share a colour and a checkerboard square"
+BAR_LABEL = "fraction of sqrt(area)"
+
+
+def _pixels(points: float) -> float:
+    """A length in points (1/72 inch) in pixels of meshes.png."""
+    return points * MESH_DPI / 72
+
+
+@functools.cache
+def _font(points: float):
+    """DejaVu Sans, matplotlib's default font (from its data directory), at ``points`` on meshes.png."""
+    path = Path(matplotlib.get_data_path()) / "fonts" / "ttf" / "DejaVuSans.ttf"
+    return ImageFont.truetype(str(path), round(_pixels(points)))
+
+
+def _colour_bar(image, draw, norm, box: list[int]) -> None:
+    """A vertical viridis bar for ``norm`` (vmin at the bottom) in ``box`` (x0, y0, x1, y1 pixels), outlined, with
+    ticks at matplotlib's default places (:class:`~matplotlib.ticker.MaxNLocator`), their values and BAR_LABEL (with
+    the values' power of ten) on its right."""
+    from matplotlib import cm
+    from matplotlib.ticker import MaxNLocator
+
+    x0, y0, x1, y1 = box
+    shades = cm.viridis(np.linspace(1.0, 0.0, y1 - y0))[:, :3]  # top row first
+    image.paste(Image.fromarray(np.round(np.repeat(shades[:, None], x1 - x0, axis=1) * 255).astype(np.uint8)), (x0, y0))
+    draw.rectangle((x0, y0, x1, y1), outline="black", width=1)
+    lo, hi = float(norm.vmin), float(norm.vmax)
+    if not hi > lo:  # one value (every distance 0): spread around it, as matplotlib's colour bar does
+        lo, hi = lo - (0.1 * abs(lo) or 0.1), hi + (0.1 * abs(hi) or 0.1)
+    places = MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]).tick_values(lo, hi)
+    ticks = [v for v in places if lo - 1e-9 * (hi - lo) <= v <= hi + 1e-9 * (hi - lo)]
+    labels, power = _tick_labels(np.array(ticks))
+    reach = x1
+    for value, label in zip(ticks, labels, strict=True):
+        y = y1 - (value - lo) / (hi - lo) * (y1 - y0)
+        draw.line((x1, y, x1 + _pixels(3.5), y), fill="black", width=1)
+        draw.text((x1 + _pixels(5.5), y), label, fill="black", font=_font(10), anchor="lm")
+        reach = max(reach, x1 + _pixels(5.5) + draw.textlength(label, font=_font(10)))
+    label = BAR_LABEL + power
+    text = Image.new("L", (round(draw.textlength(label, font=_font(10))) + 4, round(_pixels(14))), 0)
+    ImageDraw.Draw(text).text((2, 0), label, fill=255, font=_font(10))
+    text = text.rotate(90, expand=True)
+    image.paste((0, 0, 0), (round(reach + _pixels(4)), round((y0 + y1 - text.height) / 2)), text)
+
+
+def _tick_labels(ticks: np.ndarray) -> tuple[list[str], str]:
+    """Labels of tick values with the fewest decimals that keep them apart, and the power of ten they are given in
+    ("" or, for values below 0.001 or from 10,000 on, like " (x 1e-05)", as matplotlib's offset text)."""
+    top = float(np.max(np.abs(ticks))) if len(ticks) else 0.0
+    power = int(np.floor(np.log10(top))) if top > 0 and not 1e-3 <= top < 1e4 else 0
+    scaled = ticks / 10.0**power
+    step = float(np.min(np.diff(scaled))) if len(scaled) > 1 else 1.0
+    decimals = next(d for d in range(16) if np.allclose(np.round(scaled, d), scaled, rtol=0, atol=step * 1e-6))
+    return [f"{v:.{decimals}f}" for v in scaled], f" (x 1e{power:+03d})" if power else ""
 
 
 def _face_means(values: np.ndarray, faces: np.ndarray) -> np.ndarray:

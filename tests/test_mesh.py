@@ -733,6 +733,15 @@ def test_mesh_figure_puts_each_panel_in_its_place(tmp_path):
     assert dark_purple[:, two:].sum() > 10000
 
 
+def test_colour_bar_labels_keep_ticks_apart_and_small_ones_get_a_power_of_ten():
+    from meshreg.viz import _tick_labels
+
+    assert _tick_labels(np.array([0.0, 0.002, 0.004])) == (["0.000", "0.002", "0.004"], "")
+    assert _tick_labels(np.array([0.0, 0.5, 1.0])) == (["0.0", "0.5", "1.0"], "")
+    assert _tick_labels(np.array([0.0, 2.5e-5, 5e-5, 1.25e-4])) == (["0.00", "0.25", "0.50", "1.25"], " (x 1e-04)")
+    assert _tick_labels(np.array([0.0])) == (["0"], "")
+
+
 def test_inverse_of_a_warp_of_the_square_carries_its_images_back():
     from meshreg.correspondence import h_at, inverse_uv
 
