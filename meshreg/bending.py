@@ -186,7 +186,8 @@ def register_bending(
         RIGID_FIT_RESIDUAL (one unbent surface) and is not mirrored, with the registration at that start (h = the
         symmetry; ``blurred``: whether it is on the blurred grids); an answer it returns is returned as it is
         (meshes: the snap to closest points, :func:`meshreg.mesh.snap.snap_rigid`, whose answer for one rigid
-        surface does not depend on the descent), None descends as usual. ``params["descended"]`` says which.
+        surface does not depend on the descent), None descends as usual. ``params["descended"]`` says which;
+        ``timings["settle"]`` holds the time of a refused try.
 
     Returns
     -------
@@ -222,13 +223,15 @@ def register_bending(
         params.update(blurred=use_blurred, descended=descended)
         return _registration(chosen, first, second, options, params, timings, alternatives)
 
-    if settle is not None and len(close) == 1:
-        fit = start_fit(close[0])
-        if not _bent(fit[2]):
-            run = _at_start(first, fit, area, close[0], window, Log(callback, timings))
-            settled = None if run.residual.mirrored else settle(finished(run, [run], False), use_blurred)
-            if settled is not None:
-                return settled
+    fit = start_fit(close[0]) if settle is not None and len(close) == 1 else None
+    if fit is not None and not _bent(fit[2]):
+        tic, kept = time.perf_counter(), dict(timings)
+        run = _at_start(first, fit, area, close[0], window, Log(callback, timings))
+        settled = None if run.residual.mirrored else settle(finished(run, [run], False), use_blurred)
+        if settled is not None:
+            return settled
+        timings.clear()
+        timings.update(kept, settle=time.perf_counter() - tic)  # the refused try (its alternatives and snap) apart
     chosen, runs = _unmirrored(close, spare, descend)
     return finished(chosen, runs)
 

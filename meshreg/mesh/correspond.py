@@ -22,7 +22,7 @@ from .overlap import Overlap, rigid_match, rigid_overlap, warped_overlap
 from .pages import small_pages
 from .partial import register_overlap
 from .resample import blur_grid, blur_sigma, resample_grid
-from .snap import SETTLE_SLACK, snap_rigid
+from .snap import SETTLE_PINNING, SETTLE_SLACK, snap_rigid
 from .topology import DiskMesh, prepare_disk
 
 # Meshes of together at least this many triangles get their maps to the square in a forked child while the overlap is
@@ -337,18 +337,18 @@ def _registered(disks, uvs, n_input, infos, options: Options, callback, pinned, 
     "auto" with ``bend_window`` > 0) or :func:`meshreg.pipeline.register_grids` under the ``pinned`` symmetry (if
     any), and snapped (:func:`meshreg.mesh.snap.snap_rigid`); ``infos`` becomes the result's preparation report.
     The bending path first tries the snap on the parametrizations' own correspondence of an unbent pair (its
-    ``settle``, with SETTLE_SLACK): one rigid surface snaps to the same closest points from there as from the
-    descent's answer, which is then not computed (``params["descended"]`` False)."""
+    ``settle``, with SETTLE_SLACK and SETTLE_PINNING): one rigid surface that pins the pose snaps to the same closest
+    points from there as from the descent's answer, which is then not computed (``params["descended"]`` False)."""
     n = options.resolution
     grids = [resample_grid(d.vertices, d.faces, uv, n, n, options.antialias) for d, uv in zip(disks, uvs, strict=True)]
     sides = [Side.from_disk(d, uv, k) for d, uv, k in zip(disks, uvs, n_input, strict=True)]
     bending, blurred, sigma = _bending(options), None, 0.0
 
-    def snapped(result: Registration, used: list, slack: float = 1.0) -> MeshRegistration:
+    def snapped(result: Registration, used: list, slack: float = 1.0, pinning: float = 0.0) -> MeshRegistration:
         params = {**result.params, "mesh_blur_sigma": sigma if used is not grids else 0.0}
         result = replace(result, first=sides[0], second=sides[1], info=json_ready(infos), params=params)
         whole = MeshRegistration(disks[0], disks[1], uvs[0], uvs[1], tuple(grids), result, infos)
-        return snap_rigid(whole, tuple(used), bending, surfaces, slack)
+        return snap_rigid(whole, tuple(used), bending, surfaces, slack, pinning)
 
     if not bending:
         return snapped(register_grids(grids[0], grids[1], options.replace(symmetry=pinned), callback), grids)
@@ -358,7 +358,7 @@ def _registered(disks, uvs, n_input, infos, options: Options, callback, pinned, 
     settled = []
 
     def settle(result: Registration, on_blurred: bool) -> Registration | None:
-        settled.append(snapped(result, blurred if on_blurred else grids, SETTLE_SLACK))
+        settled.append(snapped(result, blurred if on_blurred else grids, SETTLE_SLACK, SETTLE_PINNING))
         return settled[-1].result if settled[-1].result.params["snapped"] else None
 
     finest = options.advanced.refine_triangles * np.mean(edges)
