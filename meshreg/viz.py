@@ -340,7 +340,7 @@ def _tick_labels(ticks: np.ndarray) -> tuple[list[str], str]:
     power = int(np.floor(np.log10(top))) if top > 0 and not 1e-3 <= top < 1e4 else 0
     scaled = ticks / 10.0**power
     step = float(np.min(np.diff(scaled))) if len(scaled) > 1 else 1.0
-    decimals = next(d for d in range(16) if np.allclose(np.round(scaled, d), scaled, rtol=0, atol=step * 1e-6))
+    decimals = next((d for d in range(16) if np.allclose(np.round(scaled, d), scaled, rtol=0, atol=step * 1e-6)), 16)
     return [f"{v:.{decimals}f}" for v in scaled], f" (x 1e{power:+03d})" if power else ""
 
 

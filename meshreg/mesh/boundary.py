@@ -101,7 +101,8 @@ def _loop_normals(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) -> 
     n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
     corners, at = np.unique(faces.ravel(), return_inverse=True)  # the faces at the loop: few vertices
     sums = np.stack([np.bincount(at, np.repeat(n[:, k], 3), minlength=len(corners)) for k in range(3)], axis=-1)
-    return sums[np.searchsorted(corners, loop)]
+    place = np.minimum(np.searchsorted(corners, loop), len(corners) - 1)
+    return np.where((corners[place] == loop)[:, None], sums[place], 0.0)  # a loop vertex in no face: no normal
 
 
 def _stretch_sums(values: np.ndarray, arc: np.ndarray, reach: float) -> np.ndarray:
@@ -116,14 +117,13 @@ def _stretch_sums(values: np.ndarray, arc: np.ndarray, reach: float) -> np.ndarr
 
 
 def _loop_direction(faces: np.ndarray, loop: np.ndarray) -> float:
-    """1.0 when the loop runs as its faces (``faces``: those at the loop) run along their boundary sides (then the
-    surface lies to the left seen along the normal, and convex corners turn positively), else -1.0."""
-    a, b = int(loop[0]), int(loop[1 % len(loop)])
-    holds = np.flatnonzero((faces == a).any(axis=1) & (faces == b).any(axis=1))
-    if not len(holds):
-        return 1.0
-    face = faces[holds[0]]
-    return 1.0 if face[(int(np.argmax(face == a)) + 1) % 3] == b else -1.0
+    """1.0 when the loop runs as its faces (``faces``: those at the loop) run along their boundary sides, by most of
+    its sides (then the surface lies to the left seen along the normal, and convex corners turn positively), else
+    -1.0."""
+    n = int(max(faces.max(initial=0), loop.max(initial=0))) + 1
+    sides = (faces * n + np.roll(faces, -1, axis=1)).ravel()  # each face's sides, directed as the face runs
+    along = loop * n + np.roll(loop, -1)
+    return 1.0 if np.isin(along, sides).sum() >= np.isin(np.roll(loop, -1) * n + loop, sides).sum() else -1.0
 
 
 def sharp_corners(
