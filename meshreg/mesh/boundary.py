@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .graph import face_normals
+
 SHARP_TURN = np.pi / 3  # a boundary vertex turning (within the surface) by more than this counts as a clear corner
 # the turning at a scale (:func:`scaled_turning`) is measured between chords reaching this many boundary edge lengths
 # (their median) along the loop either way, at most a sixteenth of its length: vertex noise of 0.1% / 0.3% / 0.5% of
@@ -97,8 +99,7 @@ def scaled_turning(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) ->
 
 def _loop_normals(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) -> np.ndarray:
     """Sum of the (area-weighted) normals of ``faces`` at each vertex of the loop, shape (b, 3)."""
-    v = np.asarray(vertices, dtype=float)
-    n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    n = face_normals(vertices, faces)
     corners, at = np.unique(faces.ravel(), return_inverse=True)  # the faces at the loop: few vertices
     sums = np.stack([np.bincount(at, np.repeat(n[:, k], 3), minlength=len(corners)) for k in range(3)], axis=-1)
     place = np.minimum(np.searchsorted(corners, loop), len(corners) - 1)

@@ -82,7 +82,8 @@ def snap_rigid(
     scale = float(np.cbrt(np.linalg.det(pose[:3, :3])))
     edge = max(first.edge, scale * second.edge)
     moved = sample.moved(pose)
-    if not (_kept_scale(scale, start) and _coincide(moved, first, rms, edge) and pose_pinning(moved) >= pinning):
+    pinned = not pinning or pose_pinning(moved) >= pinning
+    if not (_kept_scale(scale, start) and _coincide(moved, first, rms, edge) and pinned):
         return _marked(mr, False, time.perf_counter() - start_time)
     nodes, placed = mr.grids[0].points, second.moved(pose)
     _, _, triangle, weights = placed.project(nodes.reshape(-1, 3))
